@@ -1,0 +1,251 @@
+"""What both Sidewalk domains share: the TorchRL specs, the agents' life cycle, rewards, timeout, resets, seeding.
+
+A subclass supplies the dynamics through four hooks, VMAS-style:
+
+- ``_init_world()``: allocate the world's state tensors for ``self.batch_size`` worlds;
+- ``_reset_world(rows)``: put the worlds selected by the bool mask ``rows`` (B,) back at their start;
+- ``_advance(action, active)``: move the agents one step and report, per agent (B, N), who reached its goal,
+  who hit a wall, who hit another agent, and the shaping term of the step;
+- ``_observe(rows)``: the per-agent entries ``observation``, ``state`` and ``goal``; on a reset, ``rows`` marks the
+  worlds just reset, and every other world must get back exactly the observation the last step gave it.
+
+Every world lives in tensors of shape (B, N, ...) and one step is a fixed sequence of tensor operations for all
+worlds at once: there is no Python loop over worlds or agents.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from sidewalk._checks import check_int, replace_checked
+from sidewalk.envs.rewards import RewardParams, compose_reward
+
+AGENT_GROUP = "agents"
+INFO_KEYS = ("reached_goal", "collided_agent", "collided_wall", "timed_out")
+
+
+class SidewalkEnvBase(EnvBase):
+    """A batch of ``num_envs`` Sidewalk worlds as one multi-agent TorchRL environment.
+
+    Keys follow TorchRL's multi-agent layout: the group ``"agents"`` (batch shape (B, N)) holds
+    ``observation``, ``state`` (the true state, before observation noise), ``goal``, ``action``, ``reward``,
+    per-agent ``done``/``terminated``/``truncated`` and ``info`` (sticky per-episode outcome flags
+    ``reached_goal``, ``collided_agent``, ``collided_wall``, ``timed_out``); the root holds the global
+    ``done``/``terminated``/``truncated`` (shape (B, 1)).
+
+    An agent is *terminated* once it reaches its goal or collides, and then no longer moves; a world is
+    terminated when all its agents are, and truncated when ``max_steps`` steps pass first. Parameters come
+    as keyword overrides of the domain's ``Params`` dataclass; an unknown name or a bad value raises before
+    anything is built.
+    """
+
+    Params: ClassVar[type]
+    # The reward weight of the domain's shaping term and the name of that weight in RewardParams.
+    shaping_weight_name: ClassVar[str]
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        device: str | torch.device = "cpu",
+        seed: int | None = None,
+        params: Any = None,
+        **overrides: Any,
+    ) -> None:
+        check_int("num_envs", num_envs, 1)
+        if isinstance(overrides.get("rewards"), Mapping):
+            overrides["rewards"] = replace_checked(RewardParams(), overrides["rewards"], "rewards")
+        self.params = replace_checked(params if params is not None else self.Params(), overrides, type(self).__name__)
+        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        self.num_envs = num_envs
+        self.layout = self._make_layout()
+        self.n_agents = self.layout.n_agents
+        self._generator = torch.Generator(device=self.device)
+        if seed is None:
+            self._generator.seed()
+        else:
+            self._generator.manual_seed(seed)
+
+        rewards: RewardParams = self.params.rewards
+        self._shaping_mask = rewards.shaping_mask(self.n_agents, self.device)
+        self._shaping_weight = float(getattr(rewards, self.shaping_weight_name))
+
+        shape = (num_envs, self.n_agents)
+        self._active = torch.zeros(shape, dtype=torch.bool, device=self.device)
+        self._status = {key: torch.zeros(shape, dtype=torch.bool, device=self.device) for key in INFO_KEYS}
+        self._steps = torch.zeros(num_envs, dtype=torch.long, device=self.device)
+        self._init_world()
+        self._make_spec()
+
+    # ---- hooks for the domains -------------------------------------------------------------------------------
+
+    def _make_layout(self) -> Any:
+        raise NotImplementedError
+
+    def _init_world(self) -> None:
+        raise NotImplementedError
+
+    def _reset_world(self, rows: torch.Tensor) -> None:
+        raise NotImplementedError
+
+    def _advance(
+        self, action: torch.Tensor, active: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        raise NotImplementedError
+
+    def _observe(self, rows: torch.Tensor | None) -> dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+    def _agent_specs(self) -> tuple[dict[str, Any], Any]:
+        """The per-agent observation specs (``observation``, ``state``, ``goal``) and the action spec."""
+        raise NotImplementedError
+
+    # ---- specs ------------------------------------------------------------------------------------------------
+
+    def _make_spec(self) -> None:
+        batch, agents = self.batch_size, (*self.batch_size, self.n_agents)
+        observation_specs, action_spec = self._agent_specs()
+
+        def flag(shape: tuple[int, ...]) -> Categorical:
+            return Categorical(2, shape=(*shape, 1), dtype=torch.bool, device=self.device)
+
+        info = Composite({key: flag(agents) for key in INFO_KEYS}, shape=agents, device=self.device)
+        self.observation_spec = Composite(
+            {AGENT_GROUP: Composite({**observation_specs, "info": info}, shape=agents, device=self.device)},
+            shape=batch,
+            device=self.device,
+        )
+        self.action_spec = Composite(
+            {AGENT_GROUP: Composite(action=action_spec, shape=agents, device=self.device)},
+            shape=batch,
+            device=self.device,
+        )
+        self.reward_spec = Composite(
+            {
+                AGENT_GROUP: Composite(
+                    reward=Unbounded(shape=(*agents, 1), device=self.device), shape=agents, device=self.device
+                )
+            },
+            shape=batch,
+            device=self.device,
+        )
+        done_leaves = ("done", "terminated", "truncated")
+        self.done_spec = Composite(
+            {
+                AGENT_GROUP: Composite({k: flag(agents) for k in done_leaves}, shape=agents, device=self.device),
+                **{k: flag(batch) for k in done_leaves},
+            },
+            shape=batch,
+            device=self.device,
+        )
+
+    # ---- TorchRL interface --------------------------------------------------------------------------------------
+
+    def _set_seed(self, seed: int | None) -> None:
+        if seed is None:
+            self._generator.seed()
+        else:
+            self._generator.manual_seed(int(seed))
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        rows = self._rows_to_reset(tensordict)
+        self._reset_world(rows)
+        rows_agents = rows.unsqueeze(-1)
+        self._active = self._active | rows_agents
+        for key, status in self._status.items():
+            self._status[key] = status & ~rows_agents
+        self._steps = self._steps.masked_fill(rows, 0)
+        return self._output(None, rows)
+
+    def _reset_proc_data(self, tensordict: TensorDictBase | None, tensordict_reset: TensorDictBase):
+        # Our _reset returns every world (the reset ones fresh, the others exactly as the last step left them),
+        # so TorchRL's masked merge -- a full `where` over every observation, ~2 ms for 4096 images -- reduces
+        # to an update of the entries.
+        self._complete_done(self.full_done_spec, tensordict_reset)
+        self._reset_check_done(tensordict, tensordict_reset)
+        if tensordict is None:
+            return tensordict_reset
+        for key in self.reset_keys:
+            tensordict.pop(key, None)
+        return tensordict.update(tensordict_reset)
+
+    def _rows_to_reset(self, tensordict: TensorDictBase | None) -> torch.Tensor:
+        """Bool (B,): the worlds a reset call asks for. A per-agent ``_reset`` resets the agents' whole world."""
+        if tensordict is not None:
+            mask = tensordict.get("_reset", None)
+            if mask is None:
+                mask = tensordict.get((AGENT_GROUP, "_reset"), None)
+            if mask is not None:
+                return mask.reshape(self.num_envs, -1).any(-1)
+        return torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        active = self._active
+        reached_now, hit_wall_now, hit_agent_now, shaping_term = self._advance(
+            tensordict.get((AGENT_GROUP, "action")), active
+        )
+        collided_now = hit_wall_now | hit_agent_now
+        reward = compose_reward(
+            self.params.rewards,
+            self._shaping_mask,
+            active,
+            reached_now,
+            collided_now,
+            shaping_term,
+            self._shaping_weight,
+        )
+        status = self._status
+        status["reached_goal"] = status["reached_goal"] | reached_now
+        status["collided_wall"] = status["collided_wall"] | hit_wall_now
+        status["collided_agent"] = status["collided_agent"] | hit_agent_now
+        self._active = active = active & ~(reached_now | collided_now)
+        self._steps = self._steps + 1
+        status["timed_out"] = status["timed_out"] | (active & (self._steps >= self.params.max_steps).unsqueeze(-1))
+        return self._output(reward, None)
+
+    def _output(self, reward: torch.Tensor | None, reset_rows: torch.Tensor | None) -> TensorDictBase:
+        """The env's output for every world, from the current state; ``reset_rows`` is set on resets."""
+        agents_shape = (*self.batch_size, self.n_agents)
+        terminated = ~self._active
+        all_terminated = terminated.all(-1)
+        timeout = self._steps >= self.params.max_steps
+        truncated = self._active & timeout.unsqueeze(-1)
+        world_truncated = timeout & ~all_terminated
+        entries = self._observe(reset_rows)
+        entries["info"] = TensorDict(
+            {key: value.unsqueeze(-1) for key, value in self._status.items()}, batch_size=agents_shape
+        )
+        entries["terminated"] = terminated.unsqueeze(-1)
+        entries["truncated"] = truncated.unsqueeze(-1)
+        entries["done"] = (terminated | truncated).unsqueeze(-1)
+        if reward is not None:
+            entries["reward"] = reward.unsqueeze(-1)
+        all_terminated = all_terminated.unsqueeze(-1)
+        world_truncated = world_truncated.unsqueeze(-1)
+        return TensorDict(
+            {
+                AGENT_GROUP: TensorDict(entries, batch_size=agents_shape),
+                "terminated": all_terminated,
+                "truncated": world_truncated,
+                "done": all_terminated | world_truncated,
+            },
+            batch_size=self.batch_size,
+        )
+
+    # ---- conveniences -------------------------------------------------------------------------------------------
+
+    @property
+    def generator(self) -> torch.Generator:
+        """The env's random generator: opponents and views draw from it so that one seed fixes everything."""
+        return self._generator
+
+    def params_dict(self) -> dict[str, Any]:
+        """The env's parameters as a plain (nested) dict, for logging and config files."""
+        return dataclasses.asdict(self.params)

@@ -1,0 +1,253 @@
+"""The discrete Sidewalk: agents on a grid with the actions UP, DOWN, LEFT, RIGHT (paper §3.1, SPEC §1)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from torchrl.data import Bounded, Categorical
+
+from sidewalk._checks import check_choice, check_int, check_range
+from sidewalk.envs.base import SidewalkEnvBase
+from sidewalk.envs.layouts import GridLayout, grid_layout
+from sidewalk.envs.rewards import RewardParams
+
+# (d_row, d_col) of UP, DOWN, LEFT, RIGHT; rows run across the sidewalk, columns along it.
+ACTIONS = ("UP", "DOWN", "LEFT", "RIGHT")
+MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))
+OBSERVATIONS = ("image", "vector")
+
+# Grey levels of the image observation. Roles are ego-centric: in agent i's image, agent i is SELF, agent
+# i+1 (mod N) the first OTHER, and so on, so each agent and each goal has its own fixed value in every image.
+SELF, OWN_GOAL, WALL = 255, 128, 32
+
+
+def role_values(n_agents: int) -> tuple[list[int], list[int]]:
+    """Grey levels of the agents and of the goals, indexed by ego-centric role (0 = self)."""
+    others = np.linspace(224, 160, max(n_agents - 1, 1)).round().astype(int).tolist()[: n_agents - 1]
+    other_goals = np.linspace(96, 48, max(n_agents - 1, 1)).round().astype(int).tolist()[: n_agents - 1]
+    agents, goals = [SELF, *others], [OWN_GOAL, *other_goals]
+    if len(set(agents + goals + [WALL])) != 2 * n_agents + 1:
+        raise ValueError(f"{n_agents} agents are too many for distinct grey levels; use observation='vector'")
+    return agents, goals
+
+
+@dataclass(frozen=True)
+class DiscreteParams:
+    """Parameters of the discrete Sidewalk, with SPEC defaults (7 × 15 grid, 2 px per cell, 300-step timeout)."""
+
+    layout: str = "sidewalk"
+    width_cells: int = 7
+    length_cells: int = 15
+    noise: float = 0.0  # probability that an agent's action is replaced by a uniformly random one
+    observation: str = "image"  # "image": grey image (1, H·k, W·k) uint8; "vector": positions as floats
+    pixels_per_cell: int = 2
+    max_steps: int = 300
+    remove_crashed: bool = True  # a crashed agent leaves the world; False keeps it as an obstacle
+    rewards: RewardParams = field(default_factory=RewardParams)
+
+    def __post_init__(self) -> None:
+        check_int("width_cells", self.width_cells, 1, 255)
+        check_int("length_cells", self.length_cells, 2, 255)
+        check_range("noise", self.noise, 0.0, 1.0)
+        check_choice("observation", self.observation, OBSERVATIONS)
+        check_int("pixels_per_cell", self.pixels_per_cell, 1, 32)
+        check_int("max_steps", self.max_steps, 1)
+        if not isinstance(self.remove_crashed, bool):
+            raise TypeError(f"remove_crashed={self.remove_crashed!r} must be a bool")
+        if not isinstance(self.rewards, RewardParams):
+            raise TypeError(f"rewards={self.rewards!r} must be a RewardParams or a mapping of its fields")
+
+
+class DiscreteSidewalkEnv(SidewalkEnvBase):
+    """The grid Sidewalk as a batched multi-agent TorchRL env.
+
+    Per agent: ``action`` is Categorical(4) (UP, DOWN, LEFT, RIGHT); ``observation`` is the ego-centric grey
+    image (uint8, (1, rows·k, cols·k)) or, with ``observation="vector"``, the positions of every agent and goal
+    in ego order, normalised to [0, 1], plus a presence flag per agent (5·N floats); ``state`` and ``goal`` are
+    (row, col) int64.
+
+    With probability ``noise`` an agent's action is replaced by a uniformly random one. Collisions: moving off
+    the grid or into an interior wall; two agents ending in one cell; two agents swapping cells. An agent at its
+    goal stays there as an obstacle; a crashed agent is removed unless ``remove_crashed=False``.
+
+    Example:
+        >>> env = DiscreteSidewalkEnv(num_envs=64, seed=0, noise=0.1)
+        >>> rollout = env.rollout(50, break_when_any_done=False)
+    """
+
+    Params = DiscreteParams
+    shaping_weight_name = "c_center"
+
+    def _make_layout(self) -> GridLayout:
+        layout = self.params.layout
+        if isinstance(layout, GridLayout):
+            return layout
+        return grid_layout(layout, self.params.width_cells, self.params.length_cells)
+
+    def _init_world(self) -> None:
+        layout, device, n = self.layout, self.device, self.n_agents
+        self.rows, self.cols = layout.rows, layout.cols
+        self._move_row = torch.tensor([dr for dr, _ in MOVES], dtype=torch.long, device=device)
+        self._move_col = torch.tensor([dc for _, dc in MOVES], dtype=torch.long, device=device)
+        self._blocked = layout.blocked_mask(device).reshape(-1)
+        self._has_blocked = bool(self._blocked.any())
+        # Pairwise agent checks run agent-major, (N, N, B): broadcasting over a long last axis is ~10× faster
+        # than over a trailing axis of 2 agents.
+        self._not_self = ~torch.eye(n, dtype=torch.bool, device=device).unsqueeze(-1)
+        self._ego_order = (torch.arange(n, device=device)[:, None] + torch.arange(n, device=device)) % n
+        shape = (self.num_envs, n)
+        self._row = torch.zeros(shape, dtype=torch.long, device=device)
+        self._col = torch.zeros(shape, dtype=torch.long, device=device)
+        self._goal_row = torch.zeros(shape, dtype=torch.long, device=device)
+        self._goal_col = torch.zeros(shape, dtype=torch.long, device=device)
+        self._present = torch.zeros(shape, dtype=torch.bool, device=device)
+
+        # The image of a step is a copy of a per-world backdrop (walls and goals, painted on reset) with the agents
+        # scattered on top; absent agents are scattered into one spare pixel past the end of the image.
+        agent_values, goal_values = role_values(n)
+        role = (torch.arange(n, device=device) - torch.arange(n, device=device)[:, None]) % n  # role[i, j]
+        self._agent_grey = torch.tensor(agent_values, dtype=torch.uint8, device=device)[role]
+        self._goal_grey = torch.tensor(goal_values, dtype=torch.uint8, device=device)[role]
+        k = self.params.pixels_per_cell
+        pixel_row = torch.arange(self.rows * k, device=device) // k
+        pixel_col = torch.arange(self.cols * k, device=device) // k
+        self._pixel_cell = (pixel_row[:, None] * self.cols + pixel_col).reshape(-1)  # cell of every pixel
+        cell = torch.arange(self.rows * self.cols, device=device)
+        first_pixel = (cell // self.cols) * k * self.cols * k + (cell % self.cols) * k
+        within = (torch.arange(k, device=device)[:, None] * self.cols * k + torch.arange(k, device=device)).reshape(-1)
+        self._n_pixels = self.rows * k * self.cols * k
+        # (rows·cols + 1, k²) pixels of every cell; the extra last "cell" is the spare pixel of absent agents.
+        self._cell_pixels = torch.cat(
+            [first_pixel[:, None] + within, torch.full((1, k * k), self._n_pixels, device=device)]
+        )
+        self._image_shape = (1, self.rows * k, self.cols * k)
+        if self.params.observation == "image":
+            # A fixed layout has one backdrop for all worlds; otherwise each world's is repainted on its reset.
+            if layout.fixed:
+                starts, goals = layout.sample(1, self._generator)
+                self._backdrop = self._paint_backdrop(goals[..., 0] * self.cols + goals[..., 1])
+            else:
+                self._backdrop = torch.zeros((self.num_envs, n, self._n_pixels + 1), dtype=torch.uint8, device=device)
+            self._agent_grey_pixels = self._agent_grey.repeat_interleave(k * k, dim=1).expand(self.num_envs, n, -1)
+        self._vector_scale = torch.tensor(
+            [max(self.rows - 1, 1), max(self.cols - 1, 1)], dtype=torch.float32, device=device
+        )
+
+    def _agent_specs(self) -> tuple[dict[str, Any], Any]:
+        agents, device, n = (*self.batch_size, self.n_agents), self.device, self.n_agents
+        if self.params.observation == "image":
+            observation = Bounded(0, 255, shape=(*agents, *self._image_shape), dtype=torch.uint8, device=device)
+        else:
+            observation = Bounded(0.0, 1.0, shape=(*agents, 5 * n), dtype=torch.float32, device=device)
+        high = torch.tensor([self.rows - 1, self.cols - 1], device=device).expand(*agents, 2)
+        cell = Bounded(torch.zeros_like(high), high, shape=(*agents, 2), dtype=torch.long, device=device)
+        specs = {"observation": observation, "state": cell, "goal": cell.clone()}
+        return specs, Categorical(len(ACTIONS), shape=agents, dtype=torch.long, device=device)
+
+    def _reset_world(self, rows: torch.Tensor) -> None:
+        starts, goals = self.layout.sample(self.num_envs, self._generator)
+        self._row = torch.where(rows.unsqueeze(-1), starts[..., 0], self._row)
+        self._col = torch.where(rows.unsqueeze(-1), starts[..., 1], self._col)
+        self._goal_row = torch.where(rows.unsqueeze(-1), goals[..., 0], self._goal_row)
+        self._goal_col = torch.where(rows.unsqueeze(-1), goals[..., 1], self._goal_col)
+        self._present = self._present | rows.unsqueeze(-1)
+        if self.params.observation == "image" and not self.layout.fixed:
+            reset = rows.nonzero().squeeze(-1)
+            goal_cell = self._goal_row[reset] * self.cols + self._goal_col[reset]
+            self._backdrop[reset] = self._paint_backdrop(goal_cell)
+
+    def _paint_backdrop(self, goal_cell: torch.Tensor) -> torch.Tensor:
+        """Walls and goals of some worlds, as seen by every agent, plus the spare pixel: uint8 (n, N, pixels + 1)."""
+        n_worlds, n = goal_cell.shape[0], self.n_agents
+        cells = torch.zeros((n_worlds, n, self.rows * self.cols + 1), dtype=torch.uint8, device=self.device)
+        cells[..., :-1][..., self._blocked] = WALL
+        cells.scatter_(2, goal_cell.unsqueeze(1).expand(-1, n, -1), self._goal_grey.expand(n_worlds, -1, -1))
+        spare = torch.full((1,), self.rows * self.cols, device=self.device)
+        return cells.index_select(2, torch.cat([self._pixel_cell, spare]))
+
+    def _advance(self, action: torch.Tensor, active: torch.Tensor):
+        noise = self.params.noise
+        if noise > 0.0:
+            replace = torch.rand(action.shape, generator=self._generator, device=self.device) < noise
+            random_action = torch.randint(len(ACTIONS), action.shape, generator=self._generator, device=self.device)
+            action = torch.where(replace, random_action, action)
+
+        row, col = self._row, self._col
+        flat_action = action.reshape(-1)
+        target_row = row + self._move_row.index_select(0, flat_action).view_as(row) * active
+        target_col = col + self._move_col.index_select(0, flat_action).view_as(col) * active
+        inside = (target_row >= 0) & (target_row < self.rows) & (target_col >= 0) & (target_col < self.cols)
+        hit_wall = active & ~inside
+        if self._has_blocked:
+            cell = target_row.clamp(0, self.rows - 1) * self.cols + target_col.clamp(0, self.cols - 1)
+            hit_wall = hit_wall | (active & self._blocked[cell])
+        mover = active & ~hit_wall
+        new_row = torch.where(mover, target_row, row)
+        new_col = torch.where(mover, target_col, col)
+
+        # Who is in the world after the move: crashing into a wall removes an agent unless remove_crashed=False.
+        present = self._present & ~hit_wall if self.params.remove_crashed else self._present
+        cell_after = (new_row * self.cols + new_col).t().contiguous()
+        cell_before = (row * self.cols + col).t().contiguous()
+        mover_t = mover.t().contiguous()
+        shared = (cell_after.unsqueeze(1) == cell_after.unsqueeze(0)) & present.t().contiguous().unsqueeze(0)
+        swapped = (
+            (cell_after.unsqueeze(1) == cell_before.unsqueeze(0))
+            & (cell_before.unsqueeze(1) == cell_after.unsqueeze(0))
+            & mover_t.unsqueeze(0)
+        )
+        hit_agent = mover & ((shared | swapped) & self._not_self).any(1).t()
+        reached = mover & ~hit_agent & (new_row == self._goal_row) & (new_col == self._goal_col)
+
+        self._row, self._col = new_row, new_col
+        self._present = present & ~hit_agent if self.params.remove_crashed else present
+        distance_from_axis = (new_row.to(torch.float32) - self.layout.center_row).abs()
+        return reached, hit_wall, hit_agent, distance_from_axis
+
+    def _observe(self, rows: torch.Tensor | None) -> dict[str, torch.Tensor]:
+        # Grid observations are a deterministic function of the state, so unreset worlds see the same again.
+        return {
+            "observation": self._image() if self.params.observation == "image" else self._vector(),
+            "state": torch.stack([self._row, self._col], dim=-1),
+            "goal": torch.stack([self._goal_row, self._goal_col], dim=-1),
+        }
+
+    def _image(self) -> torch.Tensor:
+        batch, n = self.num_envs, self.n_agents
+        cell = torch.where(self._present, self._row * self.cols + self._col, self.rows * self.cols)
+        pixels = self._cell_pixels.index_select(0, cell.view(-1)).view(batch, 1, -1).expand(batch, n, -1)
+        canvas = self._backdrop.expand(batch, n, -1).clone(memory_format=torch.contiguous_format)
+        canvas.scatter_(2, pixels, self._agent_grey_pixels)
+        return canvas[..., : self._n_pixels].view(batch, n, *self._image_shape)
+
+    def _vector(self) -> torch.Tensor:
+        scale_row, scale_col = self._vector_scale.tolist()
+        per_agent = torch.stack(
+            [
+                self._row / scale_row,
+                self._col / scale_col,
+                self._goal_row / scale_row,
+                self._goal_col / scale_col,
+                self._present.to(torch.float32),
+            ],
+            dim=-1,
+        )
+        return per_agent.index_select(1, self._ego_order.view(-1)).view(self.num_envs, self.n_agents, -1)
+
+    def render(self, env_index: int = 0, pixels_per_cell: int = 24) -> np.ndarray:
+        """The world ``env_index`` as an RGB uint8 array (rows·px, cols·px, 3): agents as discs, goals as squares."""
+        check_int("env_index", env_index, 0, self.num_envs - 1)
+        from sidewalk.envs.render import draw_grid
+
+        return draw_grid(
+            rows=self.rows,
+            cols=self.cols,
+            blocked=self._blocked.view(self.rows, self.cols).cpu().numpy(),
+            positions=torch.stack([self._row[env_index], self._col[env_index]], -1).cpu().numpy(),
+            goals=torch.stack([self._goal_row[env_index], self._goal_col[env_index]], -1).cpu().numpy(),
+            present=self._present[env_index].cpu().numpy(),
+            pixels_per_cell=pixels_per_cell,
+        )
