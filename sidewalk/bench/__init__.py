@@ -1,0 +1,1 @@
+"""Benchmarks printed by ``runners/bench.py``: one module per section, each with ``run(args) -> list[dict]``."""

@@ -1,0 +1,77 @@
+"""The common shape of every scripted opponent: a TensorDict module that plays some agents of a Sidewalk env."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+
+from sidewalk._checks import check_int
+from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase
+
+STATE_KEY = (AGENT_GROUP, "state")
+GOAL_KEY = (AGENT_GROUP, "goal")
+DONE_KEY = (AGENT_GROUP, "done")
+ACTION_KEY = (AGENT_GROUP, "action")
+
+
+class Opponent(TensorDictModuleBase):
+    """Writes the actions of the ``controlled`` agents into ``("agents", "action")``, for all worlds at once.
+
+    An opponent reads only what the env exposes: the true state and goals of every agent, who is done, the
+    layout and the env's parameters, and it draws randomness from ``env.generator`` so that one seed fixes a run.
+    ``ego`` names the agent it plays against (the learner), or ``None``. Entries of agents it does not control
+    are left as they are, so an opponent can fill in around a learner's action.
+
+    Subclasses implement ``act(state, goal, done)`` returning the controlled agents' actions, shape
+    (B, C) for the grid or (B, C, 2) for the continuous world, and may override ``reset(rows)`` to drop
+    per-world memory (a planner's warm start) of the worlds in the bool mask ``rows`` (B,).
+    """
+
+    domains: tuple[str, ...] = ("discrete", "continuous")
+
+    def __init__(self, env: SidewalkEnvBase, controlled: Sequence[int] = (1,), ego: int | None = 0) -> None:
+        super().__init__()
+        domain = env_domain(env)
+        if domain not in self.domains:
+            raise ValueError(
+                f"opponent {type(self).__name__} plays the {' and '.join(self.domains)} domain(s), not {domain!r}"
+            )
+        self.controlled = [int(a) for a in controlled]
+        for agent in self.controlled:
+            check_int("controlled agent", agent, 0, env.n_agents - 1)
+        if ego is not None:
+            check_int("ego", ego, 0, env.n_agents - 1)
+            if ego in self.controlled:
+                raise ValueError(f"ego={ego} cannot also be a controlled agent {self.controlled}")
+        self.env = env
+        self.ego = ego
+        self.in_keys = [STATE_KEY, GOAL_KEY, DONE_KEY]
+        self.out_keys = [ACTION_KEY]
+        self._controlled_index = torch.tensor(self.controlled, dtype=torch.long, device=env.device)
+
+    def act(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def reset(self, rows: torch.Tensor | None = None) -> None:
+        """Forget per-world memory of the worlds in ``rows`` (all worlds if ``None``)."""
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = self.act(tensordict.get(STATE_KEY), tensordict.get(GOAL_KEY), tensordict.get(DONE_KEY))
+        joint = tensordict.get(ACTION_KEY, None)
+        if joint is None:
+            joint = self.env.full_action_spec[ACTION_KEY].zero()
+        else:
+            joint = joint.clone()
+        joint.index_copy_(1, self._controlled_index, action.to(joint.dtype))
+        tensordict.set(ACTION_KEY, joint)
+        return tensordict
+
+
+def env_domain(env: SidewalkEnvBase) -> str:
+    """``"discrete"`` or ``"continuous"``."""
+    from sidewalk.envs.grid import DiscreteSidewalkEnv
+
+    return "discrete" if isinstance(env, DiscreteSidewalkEnv) else "continuous"
