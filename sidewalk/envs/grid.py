@@ -10,6 +10,7 @@ import torch
 from torchrl.data import Bounded, Categorical
 
 from sidewalk._checks import check_choice, check_int, check_range
+from sidewalk.envs._buffers import ReusableBuffers
 from sidewalk.envs.base import SidewalkEnvBase
 from sidewalk.envs.layouts import GridLayout, grid_layout
 from sidewalk.envs.rewards import RewardParams
@@ -125,13 +126,15 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         )
         self._image_shape = (1, self.rows * k, self.cols * k)
         if self.params.observation == "image":
-            # A fixed layout has one backdrop for all worlds; otherwise each world's is repainted on its reset.
+            # A fixed layout paints one backdrop, shared by all worlds (copying it from cache beats copying a
+            # per-world one); otherwise each world's backdrop is repainted on its reset.
             if layout.fixed:
-                starts, goals = layout.sample(1, self._generator)
+                _, goals = layout.sample(1, self._generator)
                 self._backdrop = self._paint_backdrop(goals[..., 0] * self.cols + goals[..., 1])
             else:
                 self._backdrop = torch.zeros((self.num_envs, n, self._n_pixels + 1), dtype=torch.uint8, device=device)
             self._agent_grey_pixels = self._agent_grey.repeat_interleave(k * k, dim=1).expand(self.num_envs, n, -1)
+            self._canvases = ReusableBuffers((self.num_envs, n, self._n_pixels + 1), torch.uint8, device)
         self._vector_scale = torch.tensor(
             [max(self.rows - 1, 1), max(self.cols - 1, 1)], dtype=torch.float32, device=device
         )
@@ -147,17 +150,17 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         specs = {"observation": observation, "state": cell, "goal": cell.clone()}
         return specs, Categorical(len(ACTIONS), shape=agents, dtype=torch.long, device=device)
 
-    def _reset_world(self, rows: torch.Tensor) -> None:
+    def _reset_world(self, reset: torch.Tensor) -> None:
         starts, goals = self.layout.sample(self.num_envs, self._generator)
-        self._row = torch.where(rows.unsqueeze(-1), starts[..., 0], self._row)
-        self._col = torch.where(rows.unsqueeze(-1), starts[..., 1], self._col)
-        self._goal_row = torch.where(rows.unsqueeze(-1), goals[..., 0], self._goal_row)
-        self._goal_col = torch.where(rows.unsqueeze(-1), goals[..., 1], self._goal_col)
-        self._present = self._present | rows.unsqueeze(-1)
+        self._row = torch.where(reset, starts[..., 0], self._row)
+        self._col = torch.where(reset, starts[..., 1], self._col)
+        self._goal_row = torch.where(reset, goals[..., 0], self._goal_row)
+        self._goal_col = torch.where(reset, goals[..., 1], self._goal_col)
+        self._present = self._present | reset
         if self.params.observation == "image" and not self.layout.fixed:
-            reset = rows.nonzero().squeeze(-1)
-            goal_cell = self._goal_row[reset] * self.cols + self._goal_col[reset]
-            self._backdrop[reset] = self._paint_backdrop(goal_cell)
+            worlds = reset[:, 0].nonzero().squeeze(-1)
+            goal_cell = self._goal_row[worlds] * self.cols + self._goal_col[worlds]
+            self._backdrop[worlds] = self._paint_backdrop(goal_cell)
 
     def _paint_backdrop(self, goal_cell: torch.Tensor) -> torch.Tensor:
         """Walls and goals of some worlds, as seen by every agent, plus the spare pixel: uint8 (n, N, pixels + 1)."""
@@ -207,7 +210,7 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         distance_from_axis = (new_row.to(torch.float32) - self.layout.center_row).abs()
         return reached, hit_wall, hit_agent, distance_from_axis
 
-    def _observe(self, rows: torch.Tensor | None) -> dict[str, torch.Tensor]:
+    def _observe(self, reset: torch.Tensor | None) -> dict[str, torch.Tensor]:
         # Grid observations are a deterministic function of the state, so unreset worlds see the same again.
         return {
             "observation": self._image() if self.params.observation == "image" else self._vector(),
@@ -219,7 +222,8 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         batch, n = self.num_envs, self.n_agents
         cell = torch.where(self._present, self._row * self.cols + self._col, self.rows * self.cols)
         pixels = self._cell_pixels.index_select(0, cell.view(-1)).view(batch, 1, -1).expand(batch, n, -1)
-        canvas = self._backdrop.expand(batch, n, -1).clone(memory_format=torch.contiguous_format)
+        canvas = self._canvases.take()
+        canvas.copy_(self._backdrop.expand(batch, n, -1))
         canvas.scatter_(2, pixels, self._agent_grey_pixels)
         return canvas[..., : self._n_pixels].view(batch, n, *self._image_shape)
 

@@ -109,16 +109,15 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         action = Bounded(-high, high, shape=(*agents, 2), device=device)
         return specs, action
 
-    def _reset_world(self, rows: torch.Tensor) -> None:
+    def _reset_world(self, reset: torch.Tensor) -> None:
         starts, headings, goals = self.layout.sample(self.num_envs, self._generator)
-        agents = rows.unsqueeze(-1)
-        self._x = torch.where(agents, starts[..., 0], self._x)
-        self._y = torch.where(agents, starts[..., 1], self._y)
-        self._goal_x = torch.where(agents, goals[..., 0], self._goal_x)
-        self._goal_y = torch.where(agents, goals[..., 1], self._goal_y)
-        self._heading = torch.where(agents, headings, self._heading)
-        self._speed = self._speed.masked_fill(agents, 0.0)
-        self._present = self._present | agents
+        self._x = torch.where(reset, starts[..., 0], self._x)
+        self._y = torch.where(reset, starts[..., 1], self._y)
+        self._goal_x = torch.where(reset, goals[..., 0], self._goal_x)
+        self._goal_y = torch.where(reset, goals[..., 1], self._goal_y)
+        self._heading = torch.where(reset, headings, self._heading)
+        self._speed = self._speed.masked_fill(reset, 0.0)
+        self._present = self._present | reset
 
     def _uniform_noise(self, shape: torch.Size) -> torch.Tensor:
         noise = torch.rand(shape, generator=self._generator, device=self.device)
@@ -163,16 +162,16 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         gap_sq = (x.unsqueeze(-1) - near_x).square() + (y.unsqueeze(-1) - near_y).square()
         return (gap_sq < self.params.agent_radius_m**2).any(-1)
 
-    def _observe(self, rows: torch.Tensor | None) -> dict[str, torch.Tensor]:
+    def _observe(self, reset: torch.Tensor | None) -> dict[str, torch.Tensor]:
         state = torch.stack([self._x, self._y, self._speed, self._heading], dim=-1)
         goal = torch.stack([self._goal_x, self._goal_y], dim=-1)
         per_agent = torch.cat([state, goal], dim=-1)
         observation = per_agent.index_select(1, self._ego_order.view(-1)).view(self.num_envs, self.n_agents, -1)
         if self.params.noise > 0.0:
             observation = observation + self._uniform_noise(observation.shape)
-            if rows is not None and self._last_observation is not None:
+            if reset is not None and self._last_observation is not None:
                 # A reset draws new noise for the reset worlds only; the others keep what they were shown.
-                observation = torch.where(rows.view(-1, 1, 1), observation, self._last_observation)
+                observation = torch.where(reset.unsqueeze(-1), observation, self._last_observation)
             self._last_observation = observation
         return {"observation": observation, "state": state, "goal": goal}
 
