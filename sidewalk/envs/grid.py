@@ -10,7 +10,6 @@ import torch
 from torchrl.data import Bounded, Categorical
 
 from sidewalk._checks import check_choice, check_int, check_range
-from sidewalk.envs._buffers import ReusableBuffers
 from sidewalk.envs.base import SidewalkEnvBase
 from sidewalk.envs.layouts import GridLayout, grid_layout
 from sidewalk.envs.rewards import RewardParams
@@ -134,7 +133,6 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
             else:
                 self._backdrop = torch.zeros((self.num_envs, n, self._n_pixels + 1), dtype=torch.uint8, device=device)
             self._agent_grey_pixels = self._agent_grey.repeat_interleave(k * k, dim=1).expand(self.num_envs, n, -1)
-            self._canvases = ReusableBuffers((self.num_envs, n, self._n_pixels + 1), torch.uint8, device)
         self._vector_scale = torch.tensor(
             [max(self.rows - 1, 1), max(self.cols - 1, 1)], dtype=torch.float32, device=device
         )
@@ -222,8 +220,7 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         batch, n = self.num_envs, self.n_agents
         cell = torch.where(self._present, self._row * self.cols + self._col, self.rows * self.cols)
         pixels = self._cell_pixels.index_select(0, cell.view(-1)).view(batch, 1, -1).expand(batch, n, -1)
-        canvas = self._canvases.take()
-        canvas.copy_(self._backdrop.expand(batch, n, -1))
+        canvas = self._backdrop.expand(batch, n, -1).clone(memory_format=torch.contiguous_format)
         canvas.scatter_(2, pixels, self._agent_grey_pixels)
         return canvas[..., : self._n_pixels].view(batch, n, *self._image_shape)
 
