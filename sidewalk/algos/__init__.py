@@ -1,0 +1,1 @@
+"""Learners: one file each (dqn, trpo, ppo), each with its dataclass config."""

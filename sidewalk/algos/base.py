@@ -1,0 +1,94 @@
+"""What every learner shares: a config dataclass, a policy to collect with, one to evaluate with, an update step.
+
+A learner is one file plus one YAML: it subclasses ``Algorithm``, declares its ``Config`` dataclass (the defaults
+are the paper's or the reference implementation's, stated where they come from) and implements ``_build``,
+``collection_policy``, ``evaluation_policy`` and ``update``. The experiment loop owns the env, the collector,
+the replay buffer (for learners with ``uses_replay_buffer``), the logger and the checkpoints.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs import EnvBase
+
+from sidewalk._checks import check_int, check_range
+
+
+@dataclass
+class AlgoConfig:
+    """Settings every learner has. ``frames_per_batch`` is one collector batch, i.e. one training iteration."""
+
+    name: str = "?"
+    frames_per_batch: int = 256
+    gamma: float = 0.99
+    lr: float = 3e-4
+    max_grad_norm: float = 10.0
+
+    def __post_init__(self) -> None:
+        check_int("algo.frames_per_batch", self.frames_per_batch, 1)
+        check_range("algo.gamma", self.gamma, 0.0, 1.0)
+        check_range("algo.lr", self.lr, 0.0, 1.0, low_open=True)
+        check_range("algo.max_grad_norm", self.max_grad_norm, 0.0, low_open=True)
+
+
+class Algorithm(abc.ABC):
+    """A learner for a single-agent TorchRL env (a view of the Sidewalk with flat keys).
+
+    ``env`` provides the specs: ``observation`` (an image or a vector), ``action`` (Categorical or Bounded),
+    ``reward``, ``done``/``terminated``. The modules live on ``device``.
+    """
+
+    Config: ClassVar[type[AlgoConfig]] = AlgoConfig
+    uses_replay_buffer: ClassVar[bool] = False
+
+    def __init__(self, config: AlgoConfig, env: EnvBase, device: torch.device | str = "cpu") -> None:
+        self.config = config
+        self.device = torch.device(device)
+        self.observation_spec = env.observation_spec["observation"]
+        self.action_spec = env.full_action_spec["action"]
+        self.discrete_actions = not torch.is_floating_point(self.action_spec.zero())
+        self.frames_seen = 0
+        self._build(env)
+
+    @abc.abstractmethod
+    def _build(self, env: EnvBase) -> None:
+        """Create networks, losses and optimisers."""
+
+    @abc.abstractmethod
+    def collection_policy(self) -> TensorDictModuleBase:
+        """The policy the collector runs: exploring (ε-greedy, sampling)."""
+
+    @abc.abstractmethod
+    def evaluation_policy(self) -> TensorDictModuleBase:
+        """The policy evaluation runs: greedy / the distribution's mode."""
+
+    @abc.abstractmethod
+    def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
+        """Learn from one collector batch (and the replay buffer, if used); return scalar logs."""
+
+    def modules(self) -> dict[str, torch.nn.Module]:
+        """Everything with state to checkpoint (networks, target networks, exploration schedules)."""
+        return {}
+
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        return {}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "modules": {name: module.state_dict() for name, module in self.modules().items()},
+            "optimizers": {name: opt.state_dict() for name, opt in self.optimizers().items()},
+            "frames_seen": self.frames_seen,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        for name, module in self.modules().items():
+            module.load_state_dict(state["modules"][name])
+        for name, opt in self.optimizers().items():
+            opt.load_state_dict(state["optimizers"][name])
+        self.frames_seen = state["frames_seen"]
