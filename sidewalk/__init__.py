@@ -1,6 +1,11 @@
 """The Sidewalk Problem: a benchmark for cooperative stochastic games and interactive decision making."""
 
+from importlib.util import find_spec as _find_spec
+
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv, RewardParams
+
+if _find_spec("gymnasium") is not None:  # registers sidewalk/Discrete-v0 and sidewalk/Continuous-v0
+    from sidewalk.interop import gymnasium as _gymnasium_registration  # noqa: F401
 
 __version__ = "0.1.0"
 __all__ = ["ContinuousSidewalkEnv", "DiscreteSidewalkEnv", "RewardParams", "__version__"]

@@ -1,0 +1,368 @@
+"""Gymnasium face of the Sidewalk views: ``sidewalk/Discrete-v0`` and ``sidewalk/Continuous-v0``.
+
+Importing this module (``import sidewalk`` does) registers both ids::
+
+    env = gymnasium.make("sidewalk/Discrete-v0", opponent="dijkstra", noise=0.1)
+    envs = gymnasium.make_vec("sidewalk/Continuous-v0", num_envs=4096, opponent="prm")
+
+``opponent`` is a registered opponent name (``"random"``; ``"dijkstra"`` in the grid, ``"prm"`` in the continuous
+world) for the ego view, or ``"centralized"`` for the joint-action view; every other keyword (``noise``,
+``rewards``, ``observation``, ``max_steps``, ...) goes to the core env and is checked there. ``make_vec`` builds one
+batched core env of ``num_envs`` worlds (``vector_entry_point``), not ``num_envs`` copies.
+
+Spaces: the grid's image observation is a uint8 Box (1, H, W), its vector observation a float32 Box in [0, 1]; the
+continuous observation is a float32 Box whose bounds follow from the world's size, the speed limit and the noise.
+Actions: ``Discrete(4)`` (UP, DOWN, LEFT, RIGHT) or ``Discrete(16)`` for the centralized grid (joint index
+``a0 * 4 + a1``); a float32 Box of (acceleration m/s², turn rad) per controlled agent in the continuous world, in
+physical units (libraries that want [-1, 1], like Stable-Baselines3, take ``gymnasium.wrappers.RescaleAction``).
+
+``info`` holds ``is_success`` (the ego reached its goal; centralized: every agent did), ``agents`` (every agent's
+outcome flags ``reached_goal``, ``collided_agent``, ``collided_wall``, ``timed_out`` and its own ``reward``, each
+indexed by agent) and the true ``state`` and ``goal`` of every agent. The vector env batches each entry along a
+leading ``num_envs`` axis and adds gymnasium's ``_key`` masks; it autoresets in gymnasium's default next-step mode
+(``metadata["autoreset_mode"]``): the step after an episode ends ignores that world's action and returns its first
+observation with reward 0 and ``terminated = truncated = False``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import gymnasium
+import numpy as np
+import torch
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, TensorSpec
+
+from sidewalk._checks import check_choice
+from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, SidewalkEnvBase
+from sidewalk.envs.grid import DiscreteSidewalkEnv
+from sidewalk.envs.unicycle import OBSERVATION_FIELDS, ContinuousSidewalkEnv
+from sidewalk.views import OPPONENTS, WORLD, CentralizedView, EgoView
+
+DOMAINS: dict[str, type[SidewalkEnvBase]] = {
+    "discrete": DiscreteSidewalkEnv,
+    "continuous": ContinuousSidewalkEnv,
+}
+ENV_IDS = {"discrete": "sidewalk/Discrete-v0", "continuous": "sidewalk/Continuous-v0"}
+CENTRALIZED = "centralized"
+RENDER_MODES = ["rgb_array"]
+RENDER_FPS = 10
+# Float32 rounding of positions and headings may land a hair past the nominal bounds.
+_BOUND_SLACK = 1e-3
+
+
+def build_view(
+    domain: str,
+    num_envs: int,
+    opponent: str = "random",
+    ego: int | None = None,
+    end_on_ego_done: bool | None = None,
+    opponent_kwargs: Mapping[str, Any] | None = None,
+    device: str | torch.device = "cpu",
+    **env_kwargs: Any,
+) -> EgoView | CentralizedView:
+    """The TorchRL view behind the gymnasium face: an ``EgoView`` against ``opponent``, or a ``CentralizedView``
+    for ``opponent="centralized"`` (which takes no ``ego``, ``end_on_ego_done`` or ``opponent_kwargs``)."""
+    check_choice("domain", domain, DOMAINS)
+    check_choice("opponent", opponent, [*OPPONENTS, CENTRALIZED])
+    core = DOMAINS[domain](num_envs=num_envs, device=device, **env_kwargs)
+    if opponent == CENTRALIZED:
+        given = {"ego": ego, "end_on_ego_done": end_on_ego_done, "opponent_kwargs": opponent_kwargs}
+        extra = [name for name, value in given.items() if value is not None]
+        if extra:
+            raise ValueError(f"opponent='centralized' has no ego agent; drop {', '.join(extra)}")
+        return CentralizedView(core)
+    return EgoView(
+        core,
+        opponent=opponent,
+        ego=0 if ego is None else ego,
+        end_on_ego_done=bool(end_on_ego_done),
+        opponent_kwargs=opponent_kwargs,
+    )
+
+
+def _continuous_observation_bounds(core: SidewalkEnvBase) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of the continuous observation: positions stay within one step (max_speed·dt) of the world's
+    rectangle (a crashed agent stops where it crossed the wall), goals inside it, headings in [-π, π) once the
+    agents move (a layout's start headings may lie outside), plus ±noise on every entry."""
+    p, layout = core.params, core.layout
+    length, width, overshoot = layout.length_m, layout.width_m, p.max_speed_mps * p.dt_s
+    start_headings = tuple(getattr(layout, "headings", ()))
+    per_field = {
+        "x": (-overshoot, length + overshoot),
+        "y": (-overshoot, width + overshoot),
+        "v": (-p.max_speed_mps, p.max_speed_mps),
+        "theta": (min(-math.pi, *start_headings), max(math.pi, *start_headings)),
+        "goal_x": (0.0, length),
+        "goal_y": (0.0, width),
+    }
+    # A field added to the observation later gets no bound rather than a wrong one.
+    low = [per_field.get(name, (-math.inf, math.inf))[0] for name in OBSERVATION_FIELDS] * core.n_agents
+    high = [per_field.get(name, (-math.inf, math.inf))[1] for name in OBSERVATION_FIELDS] * core.n_agents
+    margin = p.noise + _BOUND_SLACK
+    return (np.asarray(low, dtype=np.float32) - margin, np.asarray(high, dtype=np.float32) + margin)
+
+
+def _space(spec: TensorSpec, batch_dims: int) -> spaces.Space:
+    """The gymnasium space of one entry of a TorchRL spec whose leading ``batch_dims`` axes are batch axes."""
+    if isinstance(spec, Categorical):
+        return spaces.Discrete(spec.space.n)
+    if isinstance(spec, Bounded):
+        first = (0,) * batch_dims
+        return spaces.Box(
+            low=spec.space.low[first].cpu().numpy(),
+            high=spec.space.high[first].cpu().numpy(),
+            dtype=torch.empty((), dtype=spec.dtype).numpy().dtype,
+        )
+    raise TypeError(f"no gymnasium space for {type(spec).__name__}")
+
+
+def agent_spaces(core: SidewalkEnvBase) -> tuple[spaces.Space, spaces.Space]:
+    """One agent's observation and action spaces in ``core`` (every agent's look alike)."""
+    if isinstance(core, ContinuousSidewalkEnv):
+        low, high = _continuous_observation_bounds(core)
+        observation_space: spaces.Space = spaces.Box(low=low, high=high, dtype=np.float32)
+    else:
+        observation_space = _space(core.observation_spec[AGENT_GROUP, "observation"], batch_dims=2)
+    return observation_space, _space(core.full_action_spec[AGENT_GROUP, "action"], batch_dims=2)
+
+
+def view_spaces(view: EgoView | CentralizedView) -> tuple[spaces.Space, spaces.Space]:
+    """One world's observation and action spaces of ``view`` (its observation is one agent's)."""
+    observation_space, agent_action_space = agent_spaces(view.core)
+    if isinstance(view, EgoView):
+        return observation_space, agent_action_space
+    return observation_space, _space(view.full_action_spec["action"], batch_dims=1)
+
+
+def _numpy(tensor: torch.Tensor) -> np.ndarray:
+    # A copy, so that a caller editing its arrays in place cannot reach the env's tensors (the continuous core
+    # hands the last noisy observation back on partial resets).
+    return tensor.detach().cpu().numpy().copy()
+
+
+def _info(view: EgoView | CentralizedView, out: TensorDictBase) -> dict[str, Any]:
+    """Every world's info arrays, each with a leading (B,) axis."""
+    world = out.get(WORLD)
+    flags = world.get("info")
+    agents = {key: _numpy(flags.get(key).squeeze(-1)) for key in INFO_KEYS}
+    agents["reward"] = _numpy(world.get("reward").squeeze(-1))
+    if isinstance(view, EgoView):
+        success = agents["reached_goal"][:, view.ego]
+    else:
+        success = agents["reached_goal"].all(-1)
+    return {
+        "is_success": success,
+        "agents": agents,
+        "state": _numpy(world.get("state")),
+        "goal": _numpy(world.get("goal")),
+    }
+
+
+class SidewalkGymEnv(gymnasium.Env):
+    """One Sidewalk world as a ``gymnasium.Env`` (``sidewalk/Discrete-v0`` or ``sidewalk/Continuous-v0``).
+
+    ``domain`` is ``"discrete"`` or ``"continuous"``; ``opponent`` names the scripted opponent of the ego view or
+    is ``"centralized"``; ``ego``, ``end_on_ego_done`` and ``opponent_kwargs`` go to ``EgoView``; every other
+    keyword goes to the core env. ``reset(seed=...)`` seeds the world's generator (core, opponent and noise).
+    The TorchRL view behind it is ``self.view``.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": RENDER_MODES, "render_fps": RENDER_FPS}
+
+    def __init__(
+        self,
+        domain: str = "discrete",
+        opponent: str = "random",
+        *,
+        render_mode: str | None = None,
+        ego: int | None = None,
+        end_on_ego_done: bool | None = None,
+        opponent_kwargs: Mapping[str, Any] | None = None,
+        device: str | torch.device = "cpu",
+        **env_kwargs: Any,
+    ) -> None:
+        if render_mode is not None:
+            check_choice("render_mode", render_mode, RENDER_MODES)
+        self.render_mode = render_mode
+        self.view = build_view(
+            domain, 1, opponent, ego, end_on_ego_done, opponent_kwargs, device=device, **env_kwargs
+        )
+        self.observation_space, self.action_space = view_spaces(self.view)
+        self._action_shape = tuple(self.view.full_action_spec["action"].shape)
+        self._action_dtype = self.view.full_action_spec["action"].dtype
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if options:
+            raise ValueError(f"unknown reset option(s) {sorted(options)}; this env takes none")
+        super().reset(seed=seed)
+        if seed is not None:
+            self.view.set_seed(seed)
+        out = self.view._reset(None)
+        return self._observation(out), self._single_info(out)
+
+    def step(self, action: Any):
+        action = torch.as_tensor(np.asarray(action), dtype=self._action_dtype, device=self.view.device)
+        out = self.view._step(TensorDict({"action": action.reshape(self._action_shape)}, batch_size=[1]))
+        return (
+            self._observation(out),
+            float(out.get("reward")[0, 0]),
+            bool(out.get("terminated")[0, 0]),
+            bool(out.get("truncated")[0, 0]),
+            self._single_info(out),
+        )
+
+    def _observation(self, out: TensorDictBase) -> np.ndarray:
+        return _numpy(out.get("observation")[0])
+
+    def _single_info(self, out: TensorDictBase) -> dict[str, Any]:
+        info = _info(self.view, out)
+        return {
+            "is_success": bool(info["is_success"][0]),
+            "agents": {key: value[0] for key, value in info["agents"].items()},
+            "state": info["state"][0],
+            "goal": info["goal"][0],
+        }
+
+    def render(self) -> np.ndarray | None:
+        """The world as an RGB uint8 array with ``render_mode="rgb_array"``; ``None`` (with a warning) without."""
+        if self.render_mode is None:
+            gymnasium.logger.warn(
+                "render() was called without a render mode; pass render_mode='rgb_array' to gymnasium.make"
+            )
+            return None
+        return self.view.render(0)
+
+
+class SidewalkVectorEnv(VectorEnv):
+    """``num_envs`` Sidewalk worlds as one ``gymnasium.vector.VectorEnv`` backed by one batched core env.
+
+    Arguments are those of ``SidewalkGymEnv`` plus ``num_envs``. Observations, rewards and done flags are batched
+    along a leading ``num_envs`` axis; autoreset is gymnasium's default next-step mode (see the module docstring).
+    ``reset(seed=s)`` seeds the one generator shared by every world; ``reset(options={"reset_mask": mask})``
+    resets only the worlds in the bool mask and returns every world's observation. ``render()`` returns one frame
+    per world.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {
+        "render_modes": RENDER_MODES,
+        "render_fps": RENDER_FPS,
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        domain: str = "discrete",
+        opponent: str = "random",
+        *,
+        render_mode: str | None = None,
+        ego: int | None = None,
+        end_on_ego_done: bool | None = None,
+        opponent_kwargs: Mapping[str, Any] | None = None,
+        device: str | torch.device = "cpu",
+        **env_kwargs: Any,
+    ) -> None:
+        if render_mode is not None:
+            check_choice("render_mode", render_mode, RENDER_MODES)
+        self.render_mode = render_mode
+        self.view = build_view(
+            domain, num_envs, opponent, ego, end_on_ego_done, opponent_kwargs, device=device, **env_kwargs
+        )
+        self.num_envs = num_envs
+        self.single_observation_space, self.single_action_space = view_spaces(self.view)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._action_shape = tuple(self.view.full_action_spec["action"].shape)
+        self._action_dtype = self.view.full_action_spec["action"].dtype
+        self._batch = torch.Size([num_envs])
+        self._autoreset = torch.zeros(num_envs, dtype=torch.bool, device=self.view.device)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if seed is not None and not isinstance(seed, int):
+            raise TypeError(
+                f"seed={seed!r} must be an int: one generator drives every world of the batched core"
+            )
+        super().reset(seed=seed)
+        if seed is not None:
+            self.view.set_seed(seed)
+        options = dict(options or {})
+        reset_mask = options.pop("reset_mask", None)
+        if options:
+            raise ValueError(f"unknown reset option(s) {sorted(options)}; valid: 'reset_mask'")
+        if reset_mask is None:
+            out = self.view._reset(None)
+            self._autoreset.zero_()
+        else:
+            rows = torch.as_tensor(np.asarray(reset_mask), dtype=torch.bool, device=self.view.device)
+            if rows.shape != self._batch:
+                raise ValueError(f"reset_mask has shape {tuple(rows.shape)}; expected ({self.num_envs},)")
+            out = self.view._reset(TensorDict({"_reset": rows.unsqueeze(-1)}, batch_size=self._batch))
+            self._autoreset &= ~rows
+        return _numpy(out.get("observation")), self._vector_info(out)
+
+    def step(self, actions: Any):
+        action = torch.as_tensor(np.asarray(actions), dtype=self._action_dtype, device=self.view.device)
+        out = self.view._step(
+            TensorDict({"action": action.reshape(self._action_shape)}, batch_size=self._batch)
+        )
+        reward = out.get("reward").squeeze(-1)
+        rows = self._autoreset
+        if rows.any():
+            # Next-step autoreset: worlds that ended last step restart now. They were stepped with the others (one
+            # batched step is cheaper than a masked one); the reset overwrites that step, whose reward is dropped.
+            out = self.view._reset(TensorDict({"_reset": rows.unsqueeze(-1)}, batch_size=self._batch))
+            reward = reward.masked_fill(rows, 0.0)
+        terminated = out.get("terminated").squeeze(-1)
+        truncated = out.get("truncated").squeeze(-1)
+        self._autoreset = terminated | truncated
+        return (
+            _numpy(out.get("observation")),
+            _numpy(reward),
+            _numpy(terminated),
+            _numpy(truncated),
+            self._vector_info(out),
+        )
+
+    def _vector_info(self, out: TensorDictBase) -> dict[str, Any]:
+        info = _info(self.view, out)
+
+        def with_masks(entries: dict[str, Any]) -> dict[str, Any]:
+            masked = {}
+            for key, value in entries.items():
+                masked[key] = with_masks(value) if isinstance(value, dict) else value
+                masked[f"_{key}"] = np.ones(self.num_envs, dtype=np.bool_)
+            return masked
+
+        return with_masks(info)
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """One RGB uint8 frame per world with ``render_mode="rgb_array"``; ``None`` (with a warning) without."""
+        if self.render_mode is None:
+            gymnasium.logger.warn(
+                "render() was called without a render mode; pass render_mode='rgb_array' to gymnasium.make_vec"
+            )
+            return None
+        return tuple(self.view.render(index) for index in range(self.num_envs))
+
+
+def register_envs() -> None:
+    """Register ``sidewalk/Discrete-v0`` and ``sidewalk/Continuous-v0`` with gymnasium (once per process)."""
+    for domain, env_id in ENV_IDS.items():
+        if env_id in gymnasium.registry:
+            continue
+        gymnasium.register(
+            id=env_id,
+            entry_point=f"{__name__}:SidewalkGymEnv",
+            vector_entry_point=f"{__name__}:SidewalkVectorEnv",
+            kwargs={"domain": domain},
+        )
+
+
+register_envs()

@@ -1,0 +1,464 @@
+"""How a learner sees the Sidewalk game: against a scripted opponent, as one joint controller, or as all agents.
+
+Three views of one batched core env (``DiscreteSidewalkEnv`` or ``ContinuousSidewalkEnv`` with B worlds):
+
+- ``EgoView(env, opponent, ego)``: one learning agent; the others are played by a scripted opponent. Keys are
+  flat single-agent ones, so stock single-agent TorchRL losses (``DQNLoss``, ``ClipPPOLoss``) work unchanged.
+- ``CentralizedView(env)``: the learner plays every agent through one joint action and receives the team reward.
+- the all-agents view is the multi-agent core env itself (``make_view("all", env)`` returns it).
+
+Both wrappers are thin ``EnvBase`` subclasses over the core's tensors: one step is a fixed sequence of tensor
+operations for all B worlds, and the specs are built once. They carry the same ``"world"`` group for evaluation
+and plots (every agent, in agent order, batch shape (B, N)):
+
+- ``("world", "state")`` / ``("world", "goal")``: the true state and goal of every agent (no observation noise);
+- ``("world", "reward")``: every agent's own reward of the step, (B, N, 1), zero on reset;
+- ``("world", "info", k)`` for ``k`` in ``INFO_KEYS`` (``reached_goal``, ``collided_agent``, ``collided_wall``,
+  ``timed_out``): the sticky per-episode outcome flags, (B, N, 1) bool.
+
+The ego view adds ``("info", k)``, the ego agent's own flags, (B, 1) bool, so ``ego/success_rate`` reads
+``("info", "reached_goal")`` and ``other/...`` reads ``("world", "info", k)`` at the other agents' indices.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from sidewalk._checks import check_choice, check_int
+from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, SidewalkEnvBase
+from sidewalk.opponents.base import Opponent, env_domain
+
+VIEW_KINDS = ("ego", "centralized", "all")
+WORLD = "world"
+# Opponent name -> (module, class). Modules are imported on first use, so a planner that is not installed (or not
+# written yet) costs nothing until it is asked for.
+OPPONENTS: dict[str, tuple[str, str]] = {
+    "random": ("sidewalk.opponents.random", "RandomOpponent"),
+    "dijkstra": ("sidewalk.opponents.dijkstra", "DijkstraOpponent"),
+    "prm": ("sidewalk.opponents.prm", "PRMOpponent"),
+}
+# Beyond this many joint actions a Categorical head is impractical; the all-agents view scales instead.
+MAX_JOINT_ACTIONS = 4**8
+
+
+def opponent_class(name: str) -> type[Opponent]:
+    """The ``Opponent`` subclass registered under ``name``; raises naming the valid names or the missing module."""
+    check_choice("opponent", name, OPPONENTS)
+    module_name, class_name = OPPONENTS[name]
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as error:
+        if error.name != module_name:
+            raise
+        raise ValueError(
+            f"opponent {name!r} is not available: its module {module_name} is not present"
+        ) from error
+    return getattr(module, class_name)
+
+
+def available_opponents(domain: str | None = None) -> list[str]:
+    """Names of the registered opponents whose module imports, optionally only those playing ``domain``."""
+    names = []
+    for name in OPPONENTS:
+        try:
+            cls = opponent_class(name)
+        except ValueError:
+            continue
+        if domain is None or domain in cls.domains:
+            names.append(name)
+    return names
+
+
+def make_opponent(
+    name: str, env: SidewalkEnvBase, controlled: tuple[int, ...] = (1,), ego: int | None = 0, **kwargs: Any
+) -> Opponent:
+    """Build the opponent registered as ``name`` for ``env``, playing the ``controlled`` agents against ``ego``.
+
+    Raises ``ValueError`` for an unknown name (listing the valid ones), a planner module that is missing, or an
+    opponent that does not play the env's domain (listing those that do).
+    """
+    cls = opponent_class(name)
+    domain = env_domain(env)
+    if domain not in cls.domains:
+        raise ValueError(
+            f"opponent {name!r} plays the {' and '.join(cls.domains)} domain, not {domain!r}; "
+            f"opponents for the {domain} domain: {', '.join(map(repr, available_opponents(domain)))}"
+        )
+    return cls(env, controlled=controlled, ego=ego, **kwargs)
+
+
+def _reset_rows(tensordict: TensorDictBase | None, batch_size: int, device: torch.device) -> torch.Tensor:
+    """Bool (B,): the worlds a reset call asks for (``"_reset"`` of shape (B, 1)); all of them when absent."""
+    if tensordict is not None:
+        mask = tensordict.get("_reset", None)
+        if mask is not None:
+            return mask.reshape(batch_size, -1).any(-1)
+    return torch.ones(batch_size, dtype=torch.bool, device=device)
+
+
+class _SidewalkView(EnvBase):
+    """What both wrappers share: the core env, seeding, the ``"world"`` group and the fast reset path.
+
+    The core's ``_step``/``_reset`` are called directly (as ``TransformedEnv`` does with its base env), so a step
+    costs one core step plus a few tensor selections. The core's last output is kept as ``self._last``: the core
+    is stateful (its worlds live in its tensors), and an opponent reads the agents' state and done flags from it.
+    """
+
+    def __init__(self, env: SidewalkEnvBase) -> None:
+        if not isinstance(env, SidewalkEnvBase):
+            raise TypeError(
+                f"env={env!r} must be a Sidewalk core env (DiscreteSidewalkEnv or ContinuousSidewalkEnv)"
+            )
+        super().__init__(device=env.device, batch_size=env.batch_size)
+        self.core = env
+        self.n_agents = env.n_agents
+        self.num_envs = env.num_envs
+        self.domain = env_domain(env)
+        self._agents_shape = torch.Size((*env.batch_size, env.n_agents))
+        self._last: TensorDictBase | None = None
+
+    # ---- specs shared by the views -------------------------------------------------------------------------
+
+    def _world_spec(self) -> Composite:
+        core_agents = self.core.observation_spec[AGENT_GROUP]
+        return Composite(
+            state=core_agents["state"].clone(),
+            goal=core_agents["goal"].clone(),
+            reward=self.core.full_reward_spec[AGENT_GROUP, "reward"].clone(),
+            info=core_agents["info"].clone(),
+            shape=self._agents_shape,
+            device=self.device,
+        )
+
+    def _global_done_spec(self) -> Composite:
+        core_done = self.core.full_done_spec
+        return Composite(
+            {key: core_done[key].clone() for key in ("done", "terminated", "truncated")},
+            shape=self.batch_size,
+            device=self.device,
+        )
+
+    # ---- TorchRL interface ---------------------------------------------------------------------------------
+
+    def _set_seed(self, seed: int | None) -> None:
+        self.core._set_seed(seed)
+
+    @property
+    def generator(self) -> torch.Generator:
+        """The core env's generator: the core, the opponent and the view all draw from it."""
+        return self.core.generator
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        rows = _reset_rows(tensordict, self.num_envs, self.device)
+        # The core reads the same root "_reset" mask and returns every world: reset ones fresh, the others as the
+        # last step left them (observation noise included), so this view's output is complete too.
+        core_out = self.core._reset(tensordict)
+        self._on_reset(rows)
+        self._last = core_out
+        return self._output(core_out, reset=True)
+
+    def _reset_proc_data(self, tensordict: TensorDictBase | None, tensordict_reset: TensorDictBase):
+        # _reset returns every world (reset ones fresh, the others as the last step left them) with every done key
+        # (False where reset), so TorchRL's masked merge, done completion and checks reduce to swapping in the new
+        # entries; keys others put at the root (a policy's recurrent state, ...) stay.
+        if tensordict is None:
+            return tensordict_reset
+        for key in self.reset_keys:
+            tensordict.pop(key, None)
+        for key, value in tensordict_reset.items():
+            tensordict.set(key, value)
+        return tensordict
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        last = self._last
+        if last is None:
+            raise RuntimeError(f"{type(self).__name__}.step() was called before reset()")
+        last.set((AGENT_GROUP, "action"), self._joint_action(tensordict.get("action")))
+        self._before_core_step(last)
+        core_out = self.core._step(last)
+        self._last = core_out
+        return self._output(core_out, reset=False)
+
+    # ---- hooks for the views -------------------------------------------------------------------------------
+
+    def _on_reset(self, rows: torch.Tensor) -> None:
+        """Called with the bool (B,) mask of the worlds just reset."""
+
+    def _joint_action(self, action: torch.Tensor) -> torch.Tensor:
+        """The core's ("agents", "action") (B, N[, 2]) from the view's ``action``."""
+        raise NotImplementedError
+
+    def _before_core_step(self, core_in: TensorDictBase) -> None:
+        """Last chance to fill in the core's input (the ego view's opponent writes its agents' actions)."""
+
+    def _output(self, core_out: TensorDictBase, reset: bool) -> TensorDictBase:
+        raise NotImplementedError
+
+    def _world(self, agents: TensorDictBase, reward: torch.Tensor) -> TensorDictBase:
+        return TensorDict._new_unsafe(
+            {
+                "state": agents.get("state"),
+                "goal": agents.get("goal"),
+                "reward": reward,
+                "info": agents.get("info"),
+            },
+            batch_size=self._agents_shape,
+        )
+
+    def render(self, env_index: int = 0, **kwargs: Any):
+        """The core's RGB rendering of world ``env_index`` (see the core env's ``render``)."""
+        return self.core.render(env_index, **kwargs)
+
+
+class EgoView(_SidewalkView):
+    """One learning agent (``ego``) against a scripted opponent that plays every other agent, for all B worlds.
+
+    Keys (batch shape (B,)): ``observation`` (the ego's observation, as the core gives it), ``action`` (the ego's
+    action: Categorical(4) in the grid, Bounded (acceleration, turn) in the continuous world), ``reward`` (B, 1)
+    (the ego's reward, cooperative term included), ``done``/``terminated``/``truncated`` (B, 1), the ego's outcome
+    flags ``("info", k)`` (B, 1) and the ``"world"`` group of every agent (see the module docstring).
+
+    By default the ego's episode is the world's: it ends when every agent is done or at the timeout, so rewards
+    that reach the ego after it is done (the explicit cooperative reward for the other agent's arrival) still
+    reach the learner. With ``end_on_ego_done=True`` the episode ends, and the world is reset, as soon as the ego
+    is done; ``terminated``/``truncated`` are then the ego's own.
+
+    ``opponent`` is a registered name (``"random"``, ``"dijkstra"`` for the grid, ``"prm"`` for the continuous
+    world; see ``OPPONENTS``), built with ``opponent_kwargs``, or an ``Opponent`` already built on this ``env``
+    that controls every agent but ``ego``. The opponent's ``reset(rows)`` is called whenever worlds reset.
+    """
+
+    def __init__(
+        self,
+        env: SidewalkEnvBase,
+        opponent: str | Opponent = "random",
+        ego: int = 0,
+        end_on_ego_done: bool = False,
+        opponent_kwargs: Mapping[str, Any] | None = None,
+    ) -> None:
+        super().__init__(env)
+        check_int("ego", ego, 0, env.n_agents - 1)
+        if not isinstance(end_on_ego_done, bool):
+            raise TypeError(f"end_on_ego_done={end_on_ego_done!r} must be a bool")
+        self.ego = ego
+        self.others = tuple(agent for agent in range(env.n_agents) if agent != ego)
+        self.end_on_ego_done = end_on_ego_done
+        self.opponent = self._resolve_opponent(opponent, dict(opponent_kwargs or {}))
+        self._make_spec()
+
+    def _resolve_opponent(self, opponent: str | Opponent, kwargs: dict[str, Any]) -> Opponent:
+        if isinstance(opponent, str):
+            if opponent == "centralized":
+                raise ValueError(
+                    "opponent='centralized' means the learner plays every agent: use CentralizedView(env) or "
+                    "make_view('centralized', env)"
+                )
+            return make_opponent(opponent, self.core, controlled=self.others, ego=self.ego, **kwargs)
+        if kwargs:
+            raise TypeError(f"opponent_kwargs={kwargs!r} apply only to an opponent given by name")
+        if not isinstance(opponent, Opponent):
+            raise TypeError(
+                f"opponent={opponent!r} must be an Opponent or one of the names {', '.join(map(repr, OPPONENTS))}"
+            )
+        if opponent.env is not self.core:
+            raise ValueError("the opponent was built on another env; build it on the env this view wraps")
+        if sorted(opponent.controlled) != list(self.others):
+            raise ValueError(
+                f"the opponent controls agents {opponent.controlled}; "
+                f"with ego={self.ego} it must control {list(self.others)}"
+            )
+        return opponent
+
+    def _make_spec(self) -> None:
+        core_agents = self.core.observation_spec[AGENT_GROUP]
+        ego = self.ego
+        self.observation_spec = Composite(
+            observation=core_agents["observation"].unbind(1)[ego].clone(),
+            info=core_agents["info"].unbind(1)[ego].clone(),
+            world=self._world_spec(),
+            shape=self.batch_size,
+            device=self.device,
+        )
+        self.action_spec = self.core.full_action_spec[AGENT_GROUP, "action"].unbind(1)[ego].clone()
+        self.reward_spec = Unbounded(shape=(*self.batch_size, 1), device=self.device)
+        self.done_spec = self._global_done_spec()
+
+    def _on_reset(self, rows: torch.Tensor) -> None:
+        self.opponent.reset(rows)
+
+    def _joint_action(self, action: torch.Tensor) -> torch.Tensor:
+        # The other agents' columns are placeholders: the opponent overwrites them before the core steps.
+        joint = action.new_zeros((*self._agents_shape, *action.shape[1:]))
+        joint.select(1, self.ego).copy_(action)
+        return joint
+
+    def _before_core_step(self, core_in: TensorDictBase) -> None:
+        self.opponent(core_in)
+
+    def _output(self, core_out: TensorDictBase, reset: bool) -> TensorDictBase:
+        agents = core_out.get(AGENT_GROUP)
+        ego = self.ego
+        info = agents.get("info")
+        reward = (
+            agents.get("reward") if not reset else torch.zeros((*self._agents_shape, 1), device=self.device)
+        )
+        if self.end_on_ego_done:
+            done_source, index = agents, (slice(None), ego)
+        else:
+            done_source, index = core_out, (slice(None),)
+        # _new_unsafe skips validation that costs more than the view's own work at small batch sizes (the core does
+        # the same); shapes are right by construction and check_env_specs covers them in the tests.
+        out = TensorDict._new_unsafe(
+            {
+                "observation": agents.get("observation").select(1, ego),
+                "info": TensorDict._new_unsafe(
+                    {key: info.get(key).select(1, ego) for key in INFO_KEYS}, batch_size=self.batch_size
+                ),
+                WORLD: self._world(agents, reward),
+                "done": done_source.get("done")[index],
+                "terminated": done_source.get("terminated")[index],
+                "truncated": done_source.get("truncated")[index],
+            },
+            batch_size=self.batch_size,
+        )
+        if not reset:
+            out.set("reward", reward.select(1, ego))
+        return out
+
+
+class CentralizedView(_SidewalkView):
+    """The learner plays every agent through one joint action and receives the team reward, for all B worlds.
+
+    - ``action``: in the grid, Categorical(4**N) over the product of the agents' action sets; the joint index is
+      ``sum(a_i * 4**(N-1-i))``, i.e. ``a0 * 4 + a1`` for two agents (``a_i`` in UP, DOWN, LEFT, RIGHT order:
+      index 6 = (DOWN, LEFT)); ``decode_action``/``encode_action`` convert. In the continuous world, the agents'
+      (acceleration, turn) pairs concatenated, (B, 2N) Bounded: ``[a0_accel, a0_turn, a1_accel, a1_turn]``.
+    - ``observation``: agent 0's observation (it shows every agent and goal).
+    - ``reward`` (B, 1): the sum of the agents' rewards (each one's own reward, cooperative term included);
+      ``("world", "reward")`` keeps them apart.
+    - ``done``/``terminated``/``truncated`` (B, 1): the world's.
+    """
+
+    def __init__(self, env: SidewalkEnvBase) -> None:
+        super().__init__(env)
+        core_action = self.core.full_action_spec[AGENT_GROUP, "action"]
+        if self.domain == "discrete":
+            n_moves = core_action.space.n
+            n_joint = n_moves**self.n_agents
+            if n_joint > MAX_JOINT_ACTIONS:
+                raise ValueError(
+                    f"{self.n_agents} agents make {n_joint} joint actions (more than {MAX_JOINT_ACTIONS}); "
+                    "use the all-agents view (make_view('all', env)) for this many agents"
+                )
+            place = n_moves ** torch.arange(self.n_agents - 1, -1, -1, device=self.device)
+            self._joint_place = place
+            # Row j of the table is the per-agent action tuple of joint action j.
+            self._decode_table = (torch.arange(n_joint, device=self.device)[:, None] // place) % n_moves
+        self._make_spec()
+
+    def _make_spec(self) -> None:
+        core_agents = self.core.observation_spec[AGENT_GROUP]
+        batch = self.batch_size
+        self.observation_spec = Composite(
+            observation=core_agents["observation"].unbind(1)[0].clone(),
+            world=self._world_spec(),
+            shape=batch,
+            device=self.device,
+        )
+        core_action = self.core.full_action_spec[AGENT_GROUP, "action"]
+        if self.domain == "discrete":
+            self.action_spec = Categorical(
+                self._decode_table.shape[0], shape=batch, dtype=torch.long, device=self.device
+            )
+        else:
+            low = core_action.space.low.reshape(*batch, -1)
+            high = core_action.space.high.reshape(*batch, -1)
+            self.action_spec = Bounded(
+                low, high, shape=low.shape, dtype=core_action.dtype, device=self.device
+            )
+        self.reward_spec = Unbounded(shape=(*batch, 1), device=self.device)
+        self.done_spec = self._global_done_spec()
+
+    def decode_action(self, joint: torch.Tensor) -> torch.Tensor:
+        """Per-agent actions (..., N) of grid joint indices (...); the inverse of ``encode_action``."""
+        if self.domain != "discrete":
+            raise ValueError(
+                "decode_action applies to the discrete domain; continuous joint actions are concatenated"
+            )
+        return self._decode_table[joint]
+
+    def encode_action(self, per_agent: torch.Tensor) -> torch.Tensor:
+        """Grid joint indices (...) of per-agent actions (..., N): ``sum(a_i * 4**(N-1-i))``."""
+        if self.domain != "discrete":
+            raise ValueError(
+                "encode_action applies to the discrete domain; continuous joint actions are concatenated"
+            )
+        return (per_agent * self._joint_place).sum(-1)
+
+    def _joint_action(self, action: torch.Tensor) -> torch.Tensor:
+        if self.domain == "discrete":
+            return self._decode_table.index_select(0, action.reshape(-1)).view(self._agents_shape)
+        return action.reshape(*self._agents_shape, -1)
+
+    def _output(self, core_out: TensorDictBase, reset: bool) -> TensorDictBase:
+        agents = core_out.get(AGENT_GROUP)
+        reward = (
+            agents.get("reward") if not reset else torch.zeros((*self._agents_shape, 1), device=self.device)
+        )
+        out = TensorDict._new_unsafe(
+            {
+                "observation": agents.get("observation").select(1, 0),
+                WORLD: self._world(agents, reward),
+                "done": core_out.get("done"),
+                "terminated": core_out.get("terminated"),
+                "truncated": core_out.get("truncated"),
+            },
+            batch_size=self.batch_size,
+        )
+        if not reset:
+            out.set("reward", reward.sum(1))
+        return out
+
+
+def make_view(
+    kind: str,
+    env: SidewalkEnvBase,
+    opponent: str | Opponent | None = None,
+    ego: int | None = None,
+    **kwargs: Any,
+) -> EnvBase:
+    """The view ``kind`` of ``env``: ``"ego"`` (``EgoView``; ``opponent`` defaults to ``"random"``, ``kwargs`` go
+    to ``EgoView``), ``"centralized"`` (``CentralizedView``) or ``"all"`` (the multi-agent core env itself).
+
+    ``opponent`` and ``ego`` (default 0) apply only to ``"ego"``; giving either to another view is an error, as is
+    an opponent that does not play the env's domain.
+    """
+    check_choice("kind", kind, VIEW_KINDS)
+    if not isinstance(env, SidewalkEnvBase):
+        raise TypeError(
+            f"env={env!r} must be a Sidewalk core env (DiscreteSidewalkEnv or ContinuousSidewalkEnv)"
+        )
+    if kind == "ego":
+        return EgoView(
+            env, opponent="random" if opponent is None else opponent, ego=0 if ego is None else ego, **kwargs
+        )
+    if opponent is not None and not (kind == "centralized" and opponent == "centralized"):
+        raise ValueError(
+            f"the {kind!r} view has no opponent (the learner plays every agent); got opponent={opponent!r}"
+        )
+    if ego is not None:
+        raise ValueError(
+            f"the {kind!r} view has no ego agent (the learner plays every agent); got ego={ego!r}"
+        )
+    if kwargs:
+        raise TypeError(f"unexpected argument(s) {', '.join(map(repr, kwargs))} for the {kind!r} view")
+    if kind == "centralized":
+        return CentralizedView(env)
+    return env
