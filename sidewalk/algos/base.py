@@ -40,8 +40,8 @@ class AlgoConfig:
 class Algorithm(abc.ABC):
     """A learner for a single-agent TorchRL env (a view of the Sidewalk with flat keys).
 
-    ``env`` provides the specs: ``observation`` (an image or a vector), ``action`` (Categorical or Bounded),
-    ``reward``, ``done``/``terminated``. The modules live on ``device``.
+    ``env`` provides the specs, used unbatched: ``observation`` (an image or a vector), ``action``
+    (Categorical or Bounded), ``reward``, ``done``/``terminated``. The modules live on ``device``.
     """
 
     Config: ClassVar[type[AlgoConfig]] = AlgoConfig
@@ -50,8 +50,9 @@ class Algorithm(abc.ABC):
     def __init__(self, config: AlgoConfig, env: EnvBase, device: torch.device | str = "cpu") -> None:
         self.config = config
         self.device = torch.device(device)
-        self.observation_spec = env.observation_spec["observation"]
-        self.action_spec = env.full_action_spec["action"]
+        # Unbatched specs: per-sample shapes, as TorchRL's actors and losses expect them.
+        self.observation_spec = env.full_observation_spec_unbatched["observation"]
+        self.action_spec = env.full_action_spec_unbatched["action"]
         self.discrete_actions = not torch.is_floating_point(self.action_spec.zero())
         self.frames_seen = 0
         self._build(env)

@@ -64,3 +64,41 @@ class DuelingHead(nn.Module):
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         advantage = self.advantage(features)
         return self.value(features) + advantage - advantage.mean(-1, keepdim=True)
+
+
+def make_actor(observation_spec, action_spec, hidden: list[int], activation: type[nn.Module] = nn.Tanh):
+    """From unbatched specs, a stochastic policy over the spec's actions: Categorical logits for discrete actions, a TanhNormal within
+    the spec's bounds for continuous ones. Writes ``action`` and ``action_log_prob``."""
+    from tensordict.nn import NormalParamExtractor, TensorDictModule
+    from torch.distributions import Categorical
+    from torchrl.modules import ProbabilisticActor, TanhNormal
+
+    encoder = make_encoder(observation_spec.shape, is_image_spec(observation_spec))
+    discrete = not torch.is_floating_point(action_spec.zero())
+    if discrete:
+        head = mlp(encoder.out_features, int(action_spec.space.n), hidden, activation)
+        module = TensorDictModule(nn.Sequential(encoder, head), in_keys=["observation"], out_keys=["logits"])
+        return ProbabilisticActor(
+            module, spec=action_spec, in_keys=["logits"], distribution_class=Categorical, return_log_prob=True
+        )
+    n_out = action_spec.shape[-1]
+    head = mlp(encoder.out_features, 2 * n_out, hidden, activation)
+    module = TensorDictModule(
+        nn.Sequential(encoder, head, NormalParamExtractor()), in_keys=["observation"], out_keys=["loc", "scale"]
+    )
+    return ProbabilisticActor(
+        module,
+        spec=action_spec,
+        in_keys=["loc", "scale"],
+        distribution_class=TanhNormal,
+        distribution_kwargs={"low": action_spec.space.low, "high": action_spec.space.high},
+        return_log_prob=True,
+    )
+
+
+def make_critic(observation_spec, hidden: list[int], activation: type[nn.Module] = nn.Tanh):
+    """A state-value network V(observation) writing ``state_value``."""
+    from torchrl.modules import ValueOperator
+
+    encoder = make_encoder(observation_spec.shape, is_image_spec(observation_spec))
+    return ValueOperator(nn.Sequential(encoder, mlp(encoder.out_features, 1, hidden, activation)), in_keys=["observation"])

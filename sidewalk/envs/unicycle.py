@@ -115,7 +115,8 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         self._y = torch.where(reset, starts[..., 1], self._y)
         self._goal_x = torch.where(reset, goals[..., 0], self._goal_x)
         self._goal_y = torch.where(reset, goals[..., 1], self._goal_y)
-        self._heading = torch.where(reset, headings, self._heading)
+        wrapped = torch.remainder(headings + math.pi, 2 * math.pi) - math.pi  # layouts may say π; the state is [-π, π)
+        self._heading = torch.where(reset, wrapped, self._heading)
         self._speed = self._speed.masked_fill(reset, 0.0)
         self._present = self._present | reset
 

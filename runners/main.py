@@ -1,0 +1,63 @@
+"""One trial of the Sidewalk Problem, configured by Hydra (``conf/``). See ``--help`` for the groups.
+
+    python runners/main.py                                        # discrete, Dijkstra opponent, DQN
+    python runners/main.py env=continuous opponent=prm algo=trpo noise=0.5
+    python runners/main.py -m seed=0,1,2 noise=0,0.1,0.2 hydra/launcher=joblib
+    python runners/main.py hydra.run.dir=results/runs/mine resume=true   # continue a killed run
+"""
+
+from __future__ import annotations
+
+import sys
+import traceback
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from omegaconf import DictConfig, OmegaConf
+
+from sidewalk.config import register_schemas, validate
+from sidewalk.hydra_callbacks import ERROR_FILE
+
+register_schemas()
+
+HEADLINE = ("ego/success_rate", "ego/collision_rate", "ego/return", "other/success_rate", "team/success_rate",
+            "success_rate", "collision_rate", "return", "episode_length")
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+def main(cfg: DictConfig) -> float | None:
+    hydra_cfg = HydraConfig.get()
+    run_dir = Path(hydra_cfg.runtime.output_dir)
+    in_sweep = hydra_cfg.mode == RunMode.MULTIRUN
+    try:
+        experiment = validate(cfg)  # every check before any compute
+    except (ValueError, TypeError) as error:
+        if in_sweep:
+            (run_dir / ERROR_FILE).write_text(f"invalid config: {error}\n")
+            return None
+        print(f"error: {error}", file=sys.stderr)
+        sys.exit(2)
+
+    from sidewalk.experiment import Trial, atomic_write
+
+    atomic_write(run_dir / "config.yaml", lambda tmp: OmegaConf.save(cfg, tmp, resolve=True))
+    try:
+        summary = Trial(experiment, run_dir, OmegaConf.to_container(cfg, resolve=True)).run()
+    except Exception:
+        if not in_sweep:
+            raise
+        # A failing job keeps its error in its own folder and lets the other jobs run; SweepStatus exits 1 at the end.
+        (run_dir / ERROR_FILE).write_text(traceback.format_exc())
+        return None
+    print(f"\nrun folder: {run_dir}")
+    for key in HEADLINE:
+        if key in summary:
+            print(f"  {key:22s} {summary[key]:.3f}")
+    print(f"  {'wall_clock_s':22s} {summary['wall_clock_s']:.1f}")
+    return summary.get("ego/success_rate", summary.get("team/success_rate"))
+
+
+if __name__ == "__main__":
+    main()

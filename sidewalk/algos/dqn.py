@@ -1,0 +1,145 @@
+"""DQN for the discrete Sidewalk (paper §6.1): the paper's conv stack, a dueling head, double DQN, a replay
+buffer, ε-greedy exploration and a target network, all TorchRL parts."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase, TensorDictSequential
+from torch import nn
+from torchrl.envs import EnvBase
+from torchrl.modules import EGreedyModule, QValueActor
+from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, ValueEstimators
+
+from sidewalk._checks import check_choice, check_int, check_range
+from sidewalk.algos.base import AlgoConfig, Algorithm
+from sidewalk.algos.networks import DuelingHead, is_image_spec, make_encoder
+
+
+@dataclass
+class DQNConfig(AlgoConfig):
+    """DQN settings. The network is the paper's; the rest are tuned for the batched env (a batch of worlds feeds
+    one replay buffer), so that the default run reaches ego success ≥ 0.8 against Dijkstra in minutes on 2 cores.
+    """
+
+    name: str = "dqn"
+    frames_per_batch: int = 128  # one iteration: 128 env steps (e.g. 4 steps of 32 worlds)
+    gamma: float = 0.99
+    lr: float = 5e-4  # OpenAI baselines' DQN default
+    max_grad_norm: float = 10.0
+    hidden: int = 256  # the paper's dense layer
+    buffer_size: int = 100_000
+    batch_size: int = 128
+    updates_per_batch: int = 4  # gradient steps per iteration
+    learning_starts: int = 1_000  # frames collected before the first update
+    eps_start: float = 1.0
+    eps_end: float = 0.05
+    eps_decay_frames: int = 20_000
+    target_update: str = "soft"  # "soft" (Polyak, tau per update) or "hard" (copy every target_period updates)
+    tau: float = 0.01
+    target_period: int = 500
+    double_dqn: bool = True
+    loss_function: str = "smooth_l1"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_int("algo.hidden", self.hidden, 1)
+        check_int("algo.buffer_size", self.buffer_size, 1)
+        check_int("algo.batch_size", self.batch_size, 1, self.buffer_size)
+        check_int("algo.updates_per_batch", self.updates_per_batch, 0)
+        check_int("algo.learning_starts", self.learning_starts, 0)
+        check_range("algo.eps_start", self.eps_start, 0.0, 1.0)
+        check_range("algo.eps_end", self.eps_end, 0.0, self.eps_start)
+        check_int("algo.eps_decay_frames", self.eps_decay_frames, 1)
+        check_choice("algo.target_update", self.target_update, ("soft", "hard"))
+        check_range("algo.tau", self.tau, 0.0, 1.0, low_open=True)
+        check_int("algo.target_period", self.target_period, 1)
+        check_choice("algo.loss_function", self.loss_function, ("l2", "l1", "smooth_l1"))
+
+
+class DQN(Algorithm):
+    """Double DQN with a dueling head over the paper's conv stack (or over the raw vector observation)."""
+
+    Config = DQNConfig
+    uses_replay_buffer = True
+
+    def _build(self, env: EnvBase) -> None:
+        cfg: DQNConfig = self.config
+        if not self.discrete_actions:
+            raise ValueError("algo=dqn needs a discrete action space (env=discrete); use algo=trpo or algo=ppo")
+        n_actions = int(self.action_spec.space.n)
+        encoder = make_encoder(self.observation_spec.shape, is_image_spec(self.observation_spec))
+        q_network = nn.Sequential(encoder, DuelingHead(encoder.out_features, n_actions, cfg.hidden)).to(self.device)
+        spec = self.action_spec.clone().to(self.device)
+        self.actor = QValueActor(q_network, in_keys=["observation"], spec=spec)
+        self.greedy = EGreedyModule(
+            spec, eps_init=float(cfg.eps_start), eps_end=float(cfg.eps_end),
+            annealing_num_steps=cfg.eps_decay_frames, device=self.device,
+        )
+        self.explorer = TensorDictSequential(self.actor, self.greedy)
+        self.loss = DQNLoss(
+            self.actor, delay_value=True, double_dqn=cfg.double_dqn, action_space=spec,
+            loss_function=cfg.loss_function,
+        )
+        self.loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma)
+        if cfg.target_update == "soft":
+            self.target_updater = SoftUpdate(self.loss, tau=cfg.tau)
+        else:
+            self.target_updater = HardUpdate(self.loss, value_network_update_interval=cfg.target_period)
+        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr)
+        self.updates = 0
+
+    def collection_policy(self) -> TensorDictModuleBase:
+        return self.explorer
+
+    def evaluation_policy(self) -> TensorDictModuleBase:
+        return self.actor
+
+    def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
+        cfg: DQNConfig = self.config
+        frames = batch.numel()
+        self.frames_seen += frames
+        replay_buffer.extend(batch.reshape(-1))
+        # EGreedyModule.step loops once per frame; one call with the decayed value is the same schedule.
+        self.greedy.eps.copy_(
+            torch.clamp(
+                self.greedy.eps_init - (self.greedy.eps_init - self.greedy.eps_end) * self.frames_seen / cfg.eps_decay_frames,
+                min=self.greedy.eps_end,
+            )
+        )
+        logs: dict[str, float] = {"epsilon": float(self.greedy.eps)}
+        if len(replay_buffer) < max(cfg.learning_starts, cfg.batch_size):
+            return logs
+        losses = []
+        for _ in range(cfg.updates_per_batch):
+            sample = replay_buffer.sample(cfg.batch_size).to(self.device)
+            loss = self.loss(sample)["loss"]
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.max_grad_norm)
+            self.optimizer.step()
+            self.target_updater.step()
+            losses.append(loss.detach())
+            self.updates += 1
+        logs["loss"] = float(torch.stack(losses).mean()) if losses else float("nan")
+        return logs
+
+    def modules(self) -> dict[str, torch.nn.Module]:
+        return {"loss": self.loss, "greedy": self.greedy}
+
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        return {"adam": self.optimizer}
+
+    def state_dict(self) -> dict[str, Any]:
+        # The target network's weights live in the loss module; a hard updater also counts steps to its next copy.
+        counter = getattr(self.target_updater, "counter", 0)
+        return {**super().state_dict(), "updates": self.updates, "target_counter": counter}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        super().load_state_dict(state)
+        self.updates = state["updates"]
+        if hasattr(self.target_updater, "counter"):
+            self.target_updater.counter = state["target_counter"]

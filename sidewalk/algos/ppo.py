@@ -1,0 +1,106 @@
+"""PPO (clipped surrogate) from TorchRL parts: ``ClipPPOLoss`` with a GAE advantage, for both domains."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs import EnvBase
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from sidewalk._checks import check_int, check_range
+from sidewalk.algos.base import AlgoConfig, Algorithm
+from sidewalk.algos.networks import make_actor, make_critic
+
+
+@dataclass
+class PPOConfig(AlgoConfig):
+    """PPO settings; defaults after Schulman et al. 2017 / CleanRL's continuous-control preset."""
+
+    name: str = "ppo"
+    frames_per_batch: int = 2048
+    gamma: float = 0.99
+    lr: float = 3e-4
+    max_grad_norm: float = 0.5
+    gae_lambda: float = 0.95
+    clip_epsilon: float = 0.2
+    epochs: int = 10
+    minibatch_size: int = 64
+    entropy_coef: float = 0.0
+    critic_coef: float = 0.5
+    hidden: list[int] = field(default_factory=lambda: [64, 64])
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_range("algo.gae_lambda", self.gae_lambda, 0.0, 1.0)
+        check_range("algo.clip_epsilon", self.clip_epsilon, 0.0, 1.0, low_open=True)
+        check_int("algo.epochs", self.epochs, 1)
+        check_int("algo.minibatch_size", self.minibatch_size, 1)
+        check_range("algo.entropy_coef", self.entropy_coef, 0.0)
+        check_range("algo.critic_coef", self.critic_coef, 0.0)
+        for width in self.hidden:
+            check_int("algo.hidden[]", width, 1)
+
+
+class PPO(Algorithm):
+    """Clipped PPO with a separate critic; advantages by GAE over each collected (worlds, time) batch."""
+
+    Config = PPOConfig
+
+    def _build(self, env: EnvBase) -> None:
+        cfg: PPOConfig = self.config
+        self.actor = make_actor(self.observation_spec, self.action_spec, list(cfg.hidden)).to(self.device)
+        self.critic = make_critic(self.observation_spec, list(cfg.hidden)).to(self.device)
+        self.advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=self.critic, average_gae=True)
+        self.loss = ClipPPOLoss(
+            self.actor, self.critic, clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coef,
+            critic_coeff=cfg.critic_coef, normalize_advantage=False,
+        )
+        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr)
+        self._generator = torch.Generator().manual_seed(0)
+
+    def collection_policy(self) -> TensorDictModuleBase:
+        return self.actor
+
+    def evaluation_policy(self) -> TensorDictModuleBase:
+        return self.actor  # evaluation runs it under ExplorationType.DETERMINISTIC: the distribution's mode
+
+    def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
+        cfg: PPOConfig = self.config
+        self.frames_seen += batch.numel()
+        batch = batch.to(self.device)
+        with torch.no_grad():
+            self.advantage(batch)  # GAE needs the (worlds, time) layout: time is the last batch dimension
+        flat = batch.reshape(-1)
+        logs: dict[str, list[torch.Tensor]] = {"loss_objective": [], "loss_critic": [], "loss_entropy": []}
+        for _ in range(cfg.epochs):
+            order = torch.randperm(flat.numel(), generator=self._generator).to(self.device)
+            for start in range(0, flat.numel(), cfg.minibatch_size):
+                minibatch = flat[order[start : start + cfg.minibatch_size]]
+                losses = self.loss(minibatch)
+                loss = sum(losses[key] for key in losses.keys() if key.startswith("loss_"))
+                self.optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.max_grad_norm)
+                self.optimizer.step()
+                for key in logs:
+                    if key in losses.keys():
+                        logs[key].append(losses[key].detach())
+        return {key: float(torch.stack(values).mean()) for key, values in logs.items() if values}
+
+    def modules(self) -> dict[str, torch.nn.Module]:
+        return {"loss": self.loss}
+
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        return {"adam": self.optimizer}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {**super().state_dict(), "minibatch_rng": self._generator.get_state()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        super().load_state_dict(state)
+        self._generator.set_state(state["minibatch_rng"])

@@ -1,0 +1,429 @@
+"""Trust Region Policy Optimization (Schulman et al. 2015), the paper's learner for the continuous domain (§6.1).
+
+TorchRL has no TRPO; this one is built from its parts, following OpenAI baselines' ``trpo_mpi`` (the code the paper
+ran) and sb3-contrib's TRPO:
+
+- a ``ProbabilisticActor`` (``TanhNormal`` within the action bounds, or ``Categorical``) over an MLP, and a
+  separate ``ValueOperator``; vector observations are standardised by running statistics, images go through the
+  paper's conv encoder;
+- advantages from TorchRL's ``GAE``, standardised per batch;
+- ``TRPOLoss``: the importance-weighted surrogate, the mean KL(old ‖ new) and Fisher-vector products (the Hessian
+  of that KL, by double backward);
+- ``trpo_step``: conjugate gradient for the natural-gradient direction, the step that reaches the KL bound under
+  the quadratic model, and a backtracking line search that keeps only a step whose measured KL is within the
+  bound and whose surrogate improves;
+- then a few epochs of Adam regression of the value function on the GAE returns.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule, TensorDictModuleBase
+from torch import nn
+from torch.distributions import kl_divergence
+from torch.nn.utils import parameters_to_vector, vector_to_parameters
+from torchrl.data import Bounded, Categorical, OneHot
+from torchrl.envs import EnvBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules import OneHotCategorical, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.objectives import LossModule
+from torchrl.objectives.value import GAE
+
+from sidewalk._checks import check_int, check_range
+from sidewalk.algos.base import AlgoConfig, Algorithm
+from sidewalk.algos.networks import is_image_spec, make_encoder, mlp
+
+OLD_POLICY = "old_policy"  # where ``TRPOLoss.snapshot`` keeps the frozen distribution's parameters
+
+
+@dataclass
+class TRPOConfig(AlgoConfig):
+    """TRPO's settings. Defaults: OpenAI baselines' ``trpo_mpi`` mujoco preset (``defaults.mujoco()``, the code the
+    paper ran) unless a comment says otherwise.
+
+    ``lr`` is the value function's Adam step: the policy moves by the trust-region step, not by a learning rate
+    (sb3-contrib's TRPO uses its ``learning_rate`` the same way).
+    """
+
+    name: str = "trpo"
+    frames_per_batch: int = 1024  # baselines timesteps_per_batch
+    gamma: float = 0.99  # baselines gamma
+    lr: float = 1e-3  # baselines vf_stepsize
+    max_grad_norm: float = math.inf  # value-function gradient clip; baselines and sb3-contrib do not clip
+    # Paper §6.1 and baselines mlp(num_hidden=32, num_layers=2): two tanh layers of 32; the value MLP mirrors it.
+    policy_hidden: list[int] = field(default_factory=lambda: [32, 32])
+    value_hidden: list[int] = field(default_factory=lambda: [32, 32])
+    max_kl: float = 0.01  # baselines max_kl: the trust region, mean KL(old ‖ new) per step
+    cg_iters: int = 10  # baselines cg_iters
+    cg_damping: float = 0.1  # baselines cg_damping: F + λI keeps conjugate gradient well posed
+    gae_lambda: float = 0.98  # baselines lam
+    vf_iters: int = 5  # baselines vf_iters: epochs of value regression per batch
+    vf_batch_size: int = 64  # baselines: value minibatches of 64
+    entropy_coef: float = 0.0  # baselines entcoeff
+    line_search_steps: int = 10  # baselines: at most 10 backtracking steps
+    line_search_shrink: float = 0.5  # baselines: the step halves on each backtrack
+    fvp_subsample: int = 5  # baselines: Fisher-vector products on every 5th sample (fvpargs = arr[::5])
+    normalize_observations: bool = True  # baselines mujoco preset; applies to vector observations, not images
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("policy_hidden", "value_hidden"):
+            for index, width in enumerate(getattr(self, name)):
+                check_int(f"algo.{name}[{index}]", width, 1)
+        check_range("algo.max_kl", self.max_kl, 0.0, low_open=True)
+        check_int("algo.cg_iters", self.cg_iters, 1)
+        check_range("algo.cg_damping", self.cg_damping, 0.0)
+        check_range("algo.gae_lambda", self.gae_lambda, 0.0, 1.0)
+        check_int("algo.vf_iters", self.vf_iters, 0)
+        check_int("algo.vf_batch_size", self.vf_batch_size, 1)
+        check_range("algo.entropy_coef", self.entropy_coef, 0.0)
+        check_int("algo.line_search_steps", self.line_search_steps, 1)
+        check_range("algo.line_search_shrink", self.line_search_shrink, 0.0, 1.0, low_open=True)
+        check_int("algo.fvp_subsample", self.fvp_subsample, 1)
+        if not isinstance(self.normalize_observations, bool):
+            raise TypeError(f"algo.normalize_observations={self.normalize_observations!r} must be a bool")
+
+
+def conjugate_gradient(
+    matvec: Callable[[torch.Tensor], torch.Tensor], b: torch.Tensor, iters: int, residual_tol: float = 1e-10
+) -> torch.Tensor:
+    """Approximately solve ``A x = b`` for a symmetric positive-definite ``A`` known only through ``x ↦ A x``.
+
+    Plain conjugate gradient from ``x = 0``: exact after ``len(b)`` iterations in exact arithmetic; stops early
+    once the squared residual falls below ``residual_tol``.
+    """
+    x = torch.zeros_like(b)
+    residual = b.clone()
+    direction = b.clone()
+    residual_sq = residual @ residual
+    for _ in range(iters):
+        if residual_sq < residual_tol:
+            break
+        a_direction = matvec(direction)
+        alpha = residual_sq / (direction @ a_direction)
+        x += alpha * direction
+        residual -= alpha * a_direction
+        new_residual_sq = residual @ residual
+        direction = residual + (new_residual_sq / residual_sq) * direction
+        residual_sq = new_residual_sq
+    return x
+
+
+def _entropy(
+    dist: torch.distributions.Distribution, log_prob: torch.Tensor, ratio: torch.Tensor
+) -> torch.Tensor:
+    """The analytic entropy where the distribution has one; else the importance-weighted estimate at the taken
+    actions, E_old[ratio · (−log π)], which equals the entropy in expectation and has no sampling noise of its own
+    (TanhNormal has no closed form)."""
+    try:
+        return dist.entropy()
+    except NotImplementedError:
+        return -(ratio * log_prob)
+
+
+class TRPOLoss(LossModule):
+    """TRPO's objective for a stochastic ``actor_network`` (a ``ProbabilisticActor``), against a frozen old policy.
+
+    Reads ``observation``, ``action``, ``advantage``, and what ``snapshot`` writes: ``action_log_prob`` (the old
+    policy's log-probability of ``action``) and ``"old_policy"`` (the old distribution's parameters). ``forward``
+    returns ``loss_objective`` (minus the surrogate ``mean(ratio · advantage) + entropy_coef · entropy``), ``kl``
+    (mean KL(old ‖ new)) and ``entropy``. The update itself is ``trpo_step``.
+    """
+
+    def __init__(
+        self, actor_network: ProbabilisticActor, *, entropy_coef: float = 0.0, cg_damping: float = 0.1
+    ) -> None:
+        super().__init__()
+        self.actor_network = actor_network
+        self.entropy_coef = entropy_coef
+        self.cg_damping = cg_damping
+
+    @property
+    def policy_parameters(self) -> list[nn.Parameter]:
+        """The parameters the trust-region step moves (every trainable parameter of the actor)."""
+        return [param for param in self.actor_network.parameters() if param.requires_grad]
+
+    @torch.no_grad()
+    def snapshot(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Freeze the current policy as the old one: write its distribution parameters under ``"old_policy"`` and
+        its log-probability of ``action`` under ``action_log_prob``, in place; return ``tensordict``."""
+        params = self.actor_network.get_dist_params(tensordict.copy()).select(
+            *self.actor_network.dist_params_keys
+        )
+        tensordict.set(OLD_POLICY, params)
+        old_dist = self.actor_network.build_dist_from_params(params)
+        tensordict.set("action_log_prob", old_dist.log_prob(tensordict.get("action")))
+        return tensordict
+
+    def _dist(self, tensordict: TensorDictBase) -> torch.distributions.Distribution:
+        # A shallow copy, so the new policy's parameters are not written into the caller's tensordict.
+        return self.actor_network.get_dist(tensordict.copy())
+
+    def _kl(self, tensordict: TensorDictBase, dist: torch.distributions.Distribution) -> torch.Tensor:
+        old_dist = self.actor_network.build_dist_from_params(tensordict.get(OLD_POLICY))
+        return kl_divergence(old_dist, dist).mean()
+
+    def kl(self, tensordict: TensorDictBase) -> torch.Tensor:
+        """Mean KL(old ‖ new) over ``tensordict``'s samples; differentiable in the actor's parameters."""
+        return self._kl(tensordict, self._dist(tensordict))
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        dist = self._dist(tensordict)
+        log_prob = dist.log_prob(tensordict.get("action"))
+        ratio = (log_prob - tensordict.get("action_log_prob")).exp()
+        advantage = tensordict.get("advantage").reshape(ratio.shape)
+        entropy = _entropy(dist, log_prob, ratio).mean()
+        surrogate = (ratio * advantage).mean() + self.entropy_coef * entropy
+        return TensorDict(
+            loss_objective=-surrogate, kl=self._kl(tensordict, dist), entropy=entropy.detach(), batch_size=[]
+        )
+
+    def fisher_operator(self, tensordict: TensorDictBase) -> Callable[[torch.Tensor], torch.Tensor]:
+        """``v ↦ (F + cg_damping · I) v`` at the current parameters, F the Hessian of ``kl`` on ``tensordict``.
+
+        At new = old that Hessian is the Fisher information of the policy. The KL's gradient graph is built once,
+        so each product costs one backward pass.
+        """
+        params, damping = self.policy_parameters, self.cg_damping
+        kl_grad = torch.autograd.grad(self.kl(tensordict), params, create_graph=True, materialize_grads=True)
+        kl_grad = torch.cat([grad.reshape(-1) for grad in kl_grad])
+
+        def product(vector: torch.Tensor) -> torch.Tensor:
+            hessian_vector = torch.autograd.grad(
+                kl_grad @ vector, params, retain_graph=True, materialize_grads=True
+            )
+            return torch.cat([hv.reshape(-1) for hv in hessian_vector]) + damping * vector
+
+        return product
+
+
+def trpo_step(
+    loss: TRPOLoss,
+    tensordict: TensorDictBase,
+    *,
+    max_kl: float,
+    cg_iters: int,
+    line_search_steps: int,
+    line_search_shrink: float,
+    fvp_subsample: int = 1,
+) -> dict[str, float]:
+    """One trust-region update of ``loss.actor_network`` on a flat batch prepared by ``TRPOLoss.snapshot``.
+
+    The parameters move by the largest step along the natural gradient, shrunk by ``line_search_shrink`` until the
+    measured mean KL(old ‖ new) is at most ``max_kl`` and the surrogate improves; if none of ``line_search_steps``
+    tries qualifies, they are left exactly as they were. Returns ``kl``, ``surrogate_improvement`` and
+    ``expected_improvement`` (of the step taken; 0 when none), ``step_accepted`` (1.0 or 0.0), ``step_fraction``
+    (of the full step) and ``entropy`` (of the old policy).
+    """
+    params = loss.policy_parameters
+    old_params = parameters_to_vector(params).detach()
+    before = loss(tensordict)
+    logs = dict.fromkeys(
+        ("kl", "surrogate_improvement", "expected_improvement", "step_accepted", "step_fraction"), 0.0
+    )
+    logs["entropy"] = before["entropy"].item()
+    gradient = torch.autograd.grad(-before["loss_objective"], params, materialize_grads=True)
+    gradient = torch.cat([grad.reshape(-1) for grad in gradient])
+    if not torch.isfinite(gradient).all() or not gradient.any():
+        return logs
+
+    # Natural-gradient direction F⁻¹g, and the step that reaches the KL bound under the quadratic model ½ sᵀFs.
+    fisher = loss.fisher_operator(tensordict[::fvp_subsample])
+    direction = conjugate_gradient(fisher, gradient, cg_iters)
+    curvature = direction @ fisher(direction)
+    if not curvature > 0:
+        return logs
+    full_step = torch.sqrt(2 * max_kl / curvature) * direction
+    objective_before = -before["loss_objective"].item()
+
+    with torch.no_grad():
+        for attempt in range(line_search_steps):
+            fraction = line_search_shrink**attempt
+            vector_to_parameters(old_params + fraction * full_step, params)
+            after = loss(tensordict)
+            improvement = -after["loss_objective"].item() - objective_before
+            kl = after["kl"].item()
+            if math.isfinite(improvement) and math.isfinite(kl) and kl <= max_kl and improvement > 0:
+                expected = fraction * (gradient @ full_step).item()
+                logs.update(kl=kl, surrogate_improvement=improvement, expected_improvement=expected)
+                logs.update(step_accepted=1.0, step_fraction=fraction)
+                return logs
+        vector_to_parameters(old_params, params)  # no step qualified: keep the old policy
+    return logs
+
+
+class RunningNorm(nn.Module):
+    """Standardises vectors by running mean and std, clipped to ±``clip`` (baselines' ``RunningMeanStd`` as its
+    policies use it: std floored at ``min_std``, output clipped to ±5). The identity until the first ``update``."""
+
+    def __init__(self, size: int, clip: float = 5.0, min_std: float = 0.1) -> None:
+        super().__init__()
+        self.clip = clip
+        self.min_std = min_std
+        # float64 statistics: the count grows into the millions and float32 sums would drift.
+        self.register_buffer("count", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("mean", torch.zeros(size, dtype=torch.float64))
+        self.register_buffer("var", torch.ones(size, dtype=torch.float64))
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        """Merge the samples ``x`` (..., size) into the statistics (Chan et al.'s parallel mean/variance)."""
+        x = x.reshape(-1, self.mean.shape[0]).to(torch.float64)
+        n = x.shape[0]
+        batch_mean, batch_var = x.mean(0), x.var(0, unbiased=False)
+        total = self.count + n
+        delta = batch_mean - self.mean
+        self.var.copy_((self.var * self.count + batch_var * n + delta**2 * self.count * n / total) / total)
+        self.mean.add_(delta * n / total)
+        self.count.copy_(total)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = x.to(torch.float32)
+        std = self.var.clamp_min(self.min_std**2).sqrt().to(x.dtype)
+        return ((x - self.mean.to(x.dtype)) / std).clamp(-self.clip, self.clip)
+
+
+class FixedExplorationPolicy(TensorDictModuleBase):
+    """Runs ``actor`` under ``exploration_type`` whatever the caller's context: a collection policy that always
+    samples, an evaluation policy that always takes the distribution's deterministic value."""
+
+    def __init__(self, actor: TensorDictModuleBase, exploration_type: ExplorationType) -> None:
+        super().__init__()
+        self.actor = actor
+        self.exploration_type = exploration_type
+        self.in_keys = list(actor.in_keys)
+        self.out_keys = list(actor.out_keys)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        with set_exploration_type(self.exploration_type):
+            return self.actor(tensordict)
+
+
+class TRPO(Algorithm):
+    """TRPO for a single-agent env with ``observation`` (a vector or a uint8 image) and ``action`` (``Categorical``
+    or ``OneHot`` for discrete actions, ``Bounded`` for continuous ones, sampled from a ``TanhNormal`` in the
+    bounds with a state-independent std, as in baselines).
+
+    ``update`` takes one collector batch, (num_envs, T) or (T,) with time last, as ``Collector`` returns it.
+    """
+
+    Config = TRPOConfig
+    config: TRPOConfig
+
+    def _build(self, env: EnvBase) -> None:
+        cfg = self.config
+        image = is_image_spec(self.observation_spec)
+        self.obs_norm = (
+            RunningNorm(self.observation_spec.shape[-1]) if cfg.normalize_observations and not image else None
+        )
+        self.actor = self._make_actor(self.action_spec, image).to(self.device)
+        value_net, _ = self._trunk(image, 1, cfg.value_hidden)
+        self.value = ValueOperator(value_net, in_keys=["observation"]).to(self.device)
+        self.loss = TRPOLoss(self.actor, entropy_coef=cfg.entropy_coef, cg_damping=cfg.cg_damping)
+        self.advantage = GAE(
+            gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=self.value, average_gae=False
+        )
+        self.value_optimizer = torch.optim.Adam(self.value.parameters(), lr=cfg.lr)
+        self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
+        self._evaluation = FixedExplorationPolicy(self.actor, ExplorationType.DETERMINISTIC)
+
+    def _trunk(self, image: bool, out_features: int, hidden: list[int]) -> tuple[nn.Sequential, nn.Linear]:
+        """observation → encoder → running norm (vectors) → tanh MLP → ``out_features``; also its output layer."""
+        encoder = make_encoder(self.observation_spec.shape, image)
+        head = mlp(encoder.out_features, out_features, hidden, nn.Tanh)
+        layers = [encoder] if self.obs_norm is None else [encoder, self.obs_norm]
+        return nn.Sequential(*layers, head), head[-1]
+
+    def _make_actor(self, action_spec, image: bool) -> ProbabilisticActor:
+        hidden = self.config.policy_hidden
+        if isinstance(action_spec, Bounded):
+            net, out_layer = self._trunk(image, action_spec.shape[-1], hidden)
+            # Baselines' Gaussian policy: a learned log-std per action dimension, exp(0) = 1 at the start.
+            net.append(AddStateIndependentNormalScale(action_spec.shape[-1], scale_mapping="exp"))
+            dist_keys = ["loc", "scale"]
+            dist = {
+                "distribution_class": TanhNormal,
+                "distribution_kwargs": {"low": action_spec.space.low, "high": action_spec.space.high},
+            }
+        elif isinstance(action_spec, (Categorical, OneHot)):
+            net, out_layer = self._trunk(image, action_spec.space.n, hidden)
+            dist_keys = ["logits"]
+            one_hot = isinstance(action_spec, OneHot)
+            dist = {"distribution_class": OneHotCategorical if one_hot else torch.distributions.Categorical}
+        else:
+            raise TypeError(
+                f"TRPO needs a Categorical, OneHot or Bounded action spec; got {type(action_spec).__name__}"
+            )
+        # Baselines initialises the policy's output layer with std 0.01: the first policy is near uniform/centred.
+        with torch.no_grad():
+            out_layer.weight.mul_(0.01)
+            out_layer.bias.zero_()
+        module = TensorDictModule(net, in_keys=["observation"], out_keys=dist_keys)
+        return ProbabilisticActor(module, in_keys=dist_keys, out_keys=["action"], spec=action_spec, **dist)
+
+    def collection_policy(self) -> TensorDictModuleBase:
+        return self._collection
+
+    def evaluation_policy(self) -> TensorDictModuleBase:
+        return self._evaluation
+
+    def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
+        cfg = self.config
+        keys = ["observation", "action"] + [
+            ("next", key) for key in ("observation", "reward", "done", "terminated")
+        ]
+        batch = batch.select(*keys).to(self.device)
+        self.frames_seen += batch.numel()
+        with torch.no_grad():
+            self.advantage(batch)  # GAE runs along the last batch dimension, the collector's time dimension
+        flat = batch.reshape(-1)
+        if self.obs_norm is not None:
+            self.obs_norm.update(flat.get("observation"))
+        advantage = flat.get("advantage")
+        flat.set("advantage", (advantage - advantage.mean()) / (advantage.std() + 1e-8))
+
+        self.loss.snapshot(flat)
+        logs = trpo_step(
+            self.loss,
+            flat,
+            max_kl=cfg.max_kl,
+            cg_iters=cfg.cg_iters,
+            line_search_steps=cfg.line_search_steps,
+            line_search_shrink=cfg.line_search_shrink,
+            fvp_subsample=cfg.fvp_subsample,
+        )
+        logs.update(self._fit_value(flat))
+        return logs
+
+    def _fit_value(self, flat: TensorDictBase) -> dict[str, float]:
+        """Adam regression of V on the GAE returns: ``vf_iters`` epochs of shuffled ``vf_batch_size`` minibatches."""
+        cfg = self.config
+        observation, target = flat.get("observation"), flat.get("value_target")
+        value_before = flat.get("state_value")
+        explained_variance = 1.0 - ((target - value_before).var() / target.var().clamp_min(1e-8)).item()
+        epoch_losses = [torch.nn.functional.mse_loss(value_before, target).item()]
+        for _ in range(cfg.vf_iters):
+            epoch_losses = []
+            for index in torch.randperm(flat.numel(), device=self.device).split(cfg.vf_batch_size):
+                value_loss = torch.nn.functional.mse_loss(
+                    self.value.module(observation[index]), target[index]
+                )
+                self.value_optimizer.zero_grad()
+                value_loss.backward()
+                torch.nn.utils.clip_grad_norm_(self.value.parameters(), cfg.max_grad_norm)
+                self.value_optimizer.step()
+                epoch_losses.append(value_loss.item())
+        return {"value_loss": sum(epoch_losses) / len(epoch_losses), "explained_variance": explained_variance}
+
+    def modules(self) -> dict[str, nn.Module]:
+        # The observation statistics live in both networks (one shared RunningNorm), so both state dicts carry them.
+        return {"actor": self.actor, "value": self.value}
+
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        return {"value": self.value_optimizer}

@@ -1,0 +1,208 @@
+"""Structured configs of an experiment: the schemas behind ``conf/`` and the checks run before any compute.
+
+Each config group (``env``, ``opponent``, ``algo``, ``reward``, ``logger``) has a dataclass schema registered in
+Hydra's ConfigStore under ``schema/<group>/<name>``, outside the groups themselves so that ``env=foo`` lists only
+real choices. The env and reward schemas are derived from the environments' own parameter dataclasses, so a
+default lives in one place. Range checks run in ``validate``, which turns the composed config into the objects
+the experiment builds, raising on the first bad value or combination with a message that names it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import MISSING, DictConfig, OmegaConf
+
+from sidewalk._checks import check_choice, check_int, check_range
+from sidewalk.algos.base import AlgoConfig
+from sidewalk.envs.grid import DiscreteParams
+from sidewalk.envs.layouts import grid_layout, plane_layout
+from sidewalk.envs.rewards import RewardParams
+from sidewalk.envs.unicycle import ContinuousParams
+
+DOMAINS = ("discrete", "continuous")
+OPPONENT_DOMAINS = {"random": DOMAINS, "dijkstra": ("discrete",), "prm": ("continuous",), "centralized": DOMAINS}
+ALGO_DOMAINS = {"dqn": ("discrete",), "trpo": DOMAINS, "ppo": DOMAINS}
+LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
+# Set by the top level (`noise`) and the reward group, so they are not env-group fields.
+ENV_FIELDS_SET_ELSEWHERE = ("noise", "rewards")
+
+
+SCHEMA_TYPES = {"int": int, "float": float, "str": str, "bool": bool, "tuple[int, ...] | None": Optional[list[int]]}
+
+
+def _mutable_schema(name: str, params_cls: type, extra: list[tuple], exclude: tuple[str, ...] = ()) -> type:
+    """A plain (non-frozen) dataclass with the fields and defaults of ``params_cls``, for OmegaConf to type-check."""
+    fields = []
+    for f in dataclasses.fields(params_cls):
+        if f.name in exclude:
+            continue
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        annotation = SCHEMA_TYPES[f.type]  # the params modules use postponed (string) annotations
+        fields.append((f.name, annotation, field(default=default)))
+    return dataclasses.make_dataclass(name, [*extra, *fields])
+
+
+DiscreteEnvSchema = _mutable_schema(
+    "DiscreteEnvSchema", DiscreteParams, [("domain", str, field(default="discrete"))], ENV_FIELDS_SET_ELSEWHERE
+)
+ContinuousEnvSchema = _mutable_schema(
+    "ContinuousEnvSchema", ContinuousParams, [("domain", str, field(default="continuous"))], ENV_FIELDS_SET_ELSEWHERE
+)
+RewardSchema = _mutable_schema("RewardSchema", RewardParams, [("name", str, field(default="explicit"))])
+
+
+@dataclass
+class OpponentSchema:
+    """Who plays the other agent(s): a scripted opponent by name, or ``centralized`` (the learner plays all)."""
+
+    name: str = MISSING
+    ego: int = 0  # the agent the learner plays (ego views)
+    end_on_ego_done: bool = False  # end the learner's episode when the ego is done, not when the world is
+    params: dict[str, Any] = field(default_factory=dict)  # the opponent's own settings (planner radii, ...)
+
+
+@dataclass
+class LoggerSchema:
+    """A TorchRL logger writing beside ``metrics.csv``; ``none`` writes only ``metrics.csv``."""
+
+    name: str = "csv"
+    project: str = "sidewalk"  # wandb project / mlflow experiment
+    offline: bool = True  # wandb: write locally, sync later with `wandb sync`
+    tracking_uri: str = ""  # mlflow: empty = a local file store inside the run folder
+
+
+@dataclass
+class ExperimentSchema:
+    """The root config. ``iterations`` counts collector batches (the paper's unit); ``eval_every`` and
+    ``checkpoint_every`` are in iterations; ``num_envs`` worlds are simulated in one batched env."""
+
+    env: Any = MISSING
+    opponent: Any = MISSING
+    algo: Any = MISSING
+    reward: Any = MISSING
+    logger: Any = MISSING
+    seed: int = 0
+    noise: float = 0.0
+    device: str = "cpu"
+    num_envs: int = 32
+    iterations: int = 400
+    eval_every: int = 50
+    eval_episodes: int = 256
+    checkpoint_every: int = 50
+    resume: bool = False
+    torch_threads: int = 1
+
+
+def register_schemas() -> None:
+    """Put the schemas in Hydra's ConfigStore (idempotent)."""
+    from sidewalk.algos.dqn import DQNConfig
+    from sidewalk.algos.ppo import PPOConfig
+    from sidewalk.algos.trpo import TRPOConfig
+
+    store = ConfigStore.instance()
+    store.store(name="experiment_schema", node=ExperimentSchema)
+    store.store(group="schema/env", name="discrete", node=DiscreteEnvSchema)
+    store.store(group="schema/env", name="continuous", node=ContinuousEnvSchema)
+    store.store(group="schema/reward", name="reward", node=RewardSchema)
+    store.store(group="schema/opponent", name="opponent", node=OpponentSchema)
+    store.store(group="schema/logger", name="logger", node=LoggerSchema)
+    for name, cls in (("dqn", DQNConfig), ("trpo", TRPOConfig), ("ppo", PPOConfig)):
+        store.store(group="schema/algo", name=name, node=cls)
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """A validated experiment: the objects to build, every value checked."""
+
+    domain: str
+    env_params: Any  # DiscreteParams | ContinuousParams
+    opponent: str
+    opponent_params: dict
+    ego: int
+    end_on_ego_done: bool
+    algo: AlgoConfig
+    logger: LoggerSchema
+    seed: int
+    device: str
+    num_envs: int
+    iterations: int
+    eval_every: int
+    eval_episodes: int
+    checkpoint_every: int
+    resume: bool
+    torch_threads: int
+
+
+def validate(cfg: DictConfig) -> Experiment:
+    """Check a composed config and build the typed experiment, raising ``ValueError``/``TypeError`` that names
+    the first bad value (and the valid ones) or the combination that makes no sense."""
+    from sidewalk.algos import ALGORITHMS
+
+    check_int("seed", cfg.seed, 0)
+    check_int("num_envs", cfg.num_envs, 1)
+    check_int("iterations", cfg.iterations, 1)
+    check_int("eval_every", cfg.eval_every, 0)
+    check_int("eval_episodes", cfg.eval_episodes, 1)
+    check_int("checkpoint_every", cfg.checkpoint_every, 0)
+    check_int("torch_threads", cfg.torch_threads, 1)
+    if not str(cfg.device).startswith(("cpu", "cuda", "mps")):
+        raise ValueError(f"device={cfg.device!r} is not valid; valid: 'cpu', 'cuda', 'cuda:N', 'mps'")
+
+    domain = cfg.env.domain
+    check_choice("env.domain", domain, DOMAINS)
+    opponent = cfg.opponent.name
+    check_choice("opponent", opponent, OPPONENT_DOMAINS)
+    if domain not in OPPONENT_DOMAINS[opponent]:
+        valid = [name for name, domains in OPPONENT_DOMAINS.items() if domain in domains]
+        raise ValueError(f"opponent={opponent} does not play env={domain}; valid opponents there: {', '.join(valid)}")
+    algo_name = cfg.algo.name
+    check_choice("algo", algo_name, ALGORITHMS)
+    if domain not in ALGO_DOMAINS[algo_name]:
+        valid = [name for name, domains in ALGO_DOMAINS.items() if domain in domains]
+        raise ValueError(f"algo={algo_name} does not fit env={domain}; valid algos there: {', '.join(valid)}")
+    check_choice("logger", cfg.logger.name, LOGGERS)
+
+    # The noise means a random-action probability in the grid and a ±ε uniform noise in the continuous world.
+    if domain == "discrete":
+        check_range("noise", cfg.noise, 0.0, 1.0)
+    else:
+        check_range("noise", cfg.noise, 0.0, 10.0)
+    reward_fields = {k: v for k, v in OmegaConf.to_container(cfg.reward, resolve=True).items() if k != "name"}
+    rewards = RewardParams(**reward_fields)
+    env_fields = {k: v for k, v in OmegaConf.to_container(cfg.env, resolve=True).items() if k != "domain"}
+    params_cls = DiscreteParams if domain == "discrete" else ContinuousParams
+    env_params = params_cls(**env_fields, noise=float(cfg.noise), rewards=rewards)
+
+    if domain == "discrete":
+        n_agents = grid_layout(env_params.layout, env_params.width_cells, env_params.length_cells).n_agents
+    else:
+        n_agents = plane_layout(env_params.layout, env_params.length_m, env_params.width_m).n_agents
+    rewards.shaping_mask(n_agents, device="cpu")  # raises on agents the layout does not have
+    ego = cfg.opponent.ego
+    check_int("opponent.ego", ego, 0, n_agents - 1)
+    algo_cls = ALGORITHMS[algo_name].Config
+    algo = OmegaConf.to_object(cfg.algo) if OmegaConf.get_type(cfg.algo) is algo_cls else algo_cls(**cfg.algo)
+    logger = OmegaConf.to_object(cfg.logger) if OmegaConf.get_type(cfg.logger) is LoggerSchema else LoggerSchema(**cfg.logger)
+    return Experiment(
+        domain=domain,
+        env_params=env_params,
+        opponent=opponent,
+        opponent_params=dict(OmegaConf.to_container(cfg.opponent.params, resolve=True)),
+        ego=ego,
+        end_on_ego_done=bool(cfg.opponent.end_on_ego_done),
+        algo=algo,
+        logger=logger,
+        seed=cfg.seed,
+        device=str(cfg.device),
+        num_envs=cfg.num_envs,
+        iterations=cfg.iterations,
+        eval_every=cfg.eval_every,
+        eval_episodes=cfg.eval_episodes,
+        checkpoint_every=cfg.checkpoint_every,
+        resume=bool(cfg.resume),
+        torch_threads=cfg.torch_threads,
+    )

@@ -1,0 +1,177 @@
+"""Evaluation: one episode in each of B batched worlds, and every metric of SPEC §6 per agent and overall.
+
+Metric names (every tool reads these keys): ``success_rate``, ``collision_rate`` (any), ``agent_collision_rate``,
+``wall_collision_rate``, ``timeout_rate``, ``return``, ``episode_length``, ``path_efficiency``,
+``min_separation``; per agent as ``agent0/success_rate``...; in an ego view also ``ego/...`` and ``other/...``;
+and ``team/success_rate`` (every agent reached its goal).
+
+Definitions: rates are fractions of episodes (per agent, or of agent-episodes for the overall figure); ``return``
+is an agent's undiscounted episode return (its own reward, cooperative term included); ``episode_length`` is
+the world's episode length in steps (per agent: steps until that agent was done); ``path_efficiency`` is the
+shortest distance from start to goal over the distance travelled, over agents that reached their goal (grid:
+Manhattan cells, the shortest grid path; continuous: metres to the edge of the goal radius); ``min_separation`` is the smallest distance
+between two agents in the world during the episode (grid: cells, Euclidean; continuous: centre to centre, m),
+averaged over episodes, counting only agents still in the world.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs import EnvBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+
+from sidewalk.envs.base import INFO_KEYS
+
+RATE_OF = {
+    "success_rate": "reached_goal",
+    "agent_collision_rate": "collided_agent",
+    "wall_collision_rate": "collided_wall",
+    "timeout_rate": "timed_out",
+}
+
+
+@dataclass
+class EpisodeRecord:
+    """Raw per-episode outcomes of one evaluation, arrays of shape (episodes, N) unless stated."""
+
+    info: dict[str, np.ndarray]
+    returns: np.ndarray
+    agent_length: np.ndarray
+    world_length: np.ndarray  # (episodes,)
+    travelled: np.ndarray
+    shortest: np.ndarray
+    min_separation: np.ndarray  # (episodes,), inf with a single agent
+    trajectories: np.ndarray | None = None  # (T, k, N, 2) positions of the first k worlds, NaN once finished
+    ego: int | None = None
+    extras: dict = field(default_factory=dict)
+
+
+@torch.no_grad()
+def run_episodes(
+    env: EnvBase,
+    policy: TensorDictModuleBase | None,
+    *,
+    seed: int | None = None,
+    record_trajectories: int = 0,
+) -> EpisodeRecord:
+    """Play one episode in every world of ``env`` (an ego or centralized view, B worlds = B episodes).
+
+    ``policy`` acts deterministically (greedy / distribution mode); ``None`` plays uniformly random actions.
+    ``seed`` reseeds the env first, so repeated evaluations see the same noise and opponent draws.
+    """
+    if seed is not None:
+        env.set_seed(seed)
+    core = env.core
+    n_worlds, n_agents = core.num_envs, core.n_agents
+    device = env.device
+    grid = not torch.is_floating_point(core.observation_spec["agents", "state"].zero())
+
+    def positions(world: TensorDictBase) -> torch.Tensor:
+        return world.get("state")[..., :2].to(torch.float32)
+
+    td = env.reset()
+    start = positions(td.get("world"))
+    goal = td.get(("world", "goal")).to(torch.float32)
+    # The continuous agent arrives anywhere within the goal radius, so its shortest path is that much shorter.
+    shortest = (goal - start).abs().sum(-1) if grid else ((goal - start).norm(dim=-1) - core.params.goal_radius_m).clamp(min=0)
+    finished = torch.zeros(n_worlds, dtype=torch.bool, device=device)
+    returns = torch.zeros(n_worlds, n_agents, device=device)
+    travelled = torch.zeros(n_worlds, n_agents, device=device)
+    agent_length = torch.zeros(n_worlds, n_agents, device=device)
+    world_length = torch.zeros(n_worlds, device=device)
+    min_separation = torch.full((n_worlds,), math.inf, device=device)
+    final_info = {key: torch.zeros(n_worlds, n_agents, dtype=torch.bool, device=device) for key in INFO_KEYS}
+    previous = start
+    trajectory = [start[:record_trajectories].cpu().numpy()] if record_trajectories else []
+    pair = ~torch.eye(n_agents, dtype=torch.bool, device=device)
+
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        for _ in range(core.params.max_steps + 1):
+            td = policy(td) if policy is not None else env.rand_action(td)
+            td = env.step(td)
+            nxt = td.get("next")
+            world = nxt.get("world")
+            running = ~finished
+            was_active = ~torch.stack([final_info[k] for k in ("reached_goal", "collided_agent", "collided_wall")]).any(0)
+            now = positions(world)
+            moved = (now - previous).abs().sum(-1) if grid else (now - previous).norm(dim=-1)
+            live = running.unsqueeze(-1)
+            returns += world.get("reward").squeeze(-1) * live
+            travelled += moved * live
+            info = {key: world.get(("info", key)).squeeze(-1) for key in INFO_KEYS}
+            in_world = ~(info["collided_agent"] | info["collided_wall"])
+            agent_length += (was_active & live).float()
+            world_length += running.float()
+            if n_agents > 1:
+                gaps = torch.cdist(now, now)
+                both = in_world.unsqueeze(-1) & in_world.unsqueeze(-2) & pair
+                closest = torch.where(both, gaps, torch.full_like(gaps, math.inf)).flatten(1).min(-1).values
+                min_separation = torch.where(running, torch.minimum(min_separation, closest), min_separation)
+            for key in INFO_KEYS:
+                final_info[key] = torch.where(live, info[key], final_info[key])
+            if record_trajectories:
+                frame = now[:record_trajectories].clone()
+                frame[finished[:record_trajectories]] = float("nan")
+                trajectory.append(frame.cpu().numpy())
+            previous = now
+            finished = finished | nxt.get("done").squeeze(-1)
+            if bool(finished.all()):
+                break
+            td = step_mdp(td)
+
+    return EpisodeRecord(
+        info={key: value.cpu().numpy() for key, value in final_info.items()},
+        returns=returns.cpu().numpy(),
+        agent_length=agent_length.cpu().numpy(),
+        world_length=world_length.cpu().numpy(),
+        travelled=travelled.cpu().numpy(),
+        shortest=shortest.cpu().numpy(),
+        min_separation=min_separation.cpu().numpy(),
+        trajectories=np.stack(trajectory) if record_trajectories else None,
+        ego=getattr(env, "ego", None),
+    )
+
+
+def _group_metrics(record: EpisodeRecord, agents: list[int]) -> dict[str, float]:
+    """Rates and means over the given agents' episodes."""
+    out = {name: float(record.info[key][:, agents].mean()) for name, key in RATE_OF.items()}
+    collided = record.info["collided_agent"][:, agents] | record.info["collided_wall"][:, agents]
+    out["collision_rate"] = float(collided.mean())
+    out["return"] = float(record.returns[:, agents].mean())
+    out["episode_length"] = float(record.agent_length[:, agents].mean())
+    reached = record.info["reached_goal"][:, agents]
+    efficiency = record.shortest[:, agents] / np.maximum(record.travelled[:, agents], 1e-9)
+    out["path_efficiency"] = float(efficiency[reached].mean()) if reached.any() else float("nan")
+    return out
+
+
+def summarize(record: EpisodeRecord) -> dict[str, float]:
+    """Every metric of SPEC §6 as flat keys: overall, ``agent{i}/``, ``ego/`` and ``other/`` (ego views),
+    ``team/success_rate``, and ``episodes``."""
+    n_agents = record.returns.shape[1]
+    metrics = _group_metrics(record, list(range(n_agents)))
+    metrics["episode_length"] = float(record.world_length.mean())
+    finite = record.min_separation[np.isfinite(record.min_separation)]
+    metrics["min_separation"] = float(finite.mean()) if finite.size else float("nan")
+    metrics["team/success_rate"] = float(record.info["reached_goal"].all(1).mean())
+    metrics["episodes"] = float(record.returns.shape[0])
+    for agent in range(n_agents):
+        for name, value in _group_metrics(record, [agent]).items():
+            metrics[f"agent{agent}/{name}"] = value
+    if record.ego is not None:
+        others = [a for a in range(n_agents) if a != record.ego]
+        for prefix, agents in (("ego", [record.ego]), ("other", others)):
+            for name, value in _group_metrics(record, agents).items():
+                metrics[f"{prefix}/{name}"] = value
+    return metrics
+
+
+def evaluate(env: EnvBase, policy: TensorDictModuleBase | None, *, seed: int | None = None) -> dict[str, float]:
+    """Metrics of one episode in each of ``env``'s worlds under ``policy`` (see ``summarize``)."""
+    return summarize(run_episodes(env, policy, seed=seed))

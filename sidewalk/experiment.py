@@ -1,0 +1,338 @@
+"""One trial: env → view → learner → collector → replay buffer → logger, trained, evaluated and checkpointed.
+
+``Trial(experiment, run_dir).run()`` reads top to bottom in ``run``. A run folder holds:
+
+- ``config.yaml``: the resolved config (written by ``runners/main.py``);
+- ``metrics.csv``: one row per iteration (frames, wall clock, train metrics, eval metrics at eval iterations);
+- ``summary.json``: the final evaluation as flat SPEC §6 keys plus seed, wall clock, versions, git revision;
+- ``checkpoint.pt``: everything needed to continue exactly where the run was (``resume=true``);
+- the logger's own files (``logs/``).
+
+Files are replaced atomically (written beside, then renamed), so a crash or a kill never leaves one half-written,
+and a resumed run rewinds ``metrics.csv`` to its checkpoint before going on, so it ends with the same rows as a
+run that was never interrupted.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import random
+import subprocess
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import torch
+from tensordict import TensorDictBase
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.envs import EnvBase, RewardSum, TransformedEnv
+from tqdm import tqdm
+
+from sidewalk.algos import ALGORITHMS
+from sidewalk.algos.base import Algorithm
+from sidewalk.config import Experiment
+from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
+from sidewalk.evaluate import evaluate
+from sidewalk.views import CentralizedView, EgoView
+
+EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds draw from a stream of their own, the same at every evaluation
+CHECKPOINT = "checkpoint.pt"
+METRICS = "metrics.csv"
+SUMMARY = "summary.json"
+WALL_CLOCK_COLUMNS = ("time_s", "frames_per_s")
+# What the replay buffer keeps of a transition (the "world" group and info are for metrics, not learning).
+TRANSITION_KEYS = (
+    "observation", "action",
+    ("next", "observation"), ("next", "reward"), ("next", "done"), ("next", "terminated"), ("next", "truncated"),
+)
+
+
+def make_view(experiment: Experiment, num_envs: int, seed: int) -> EnvBase:
+    """The env a learner trains or is evaluated on: the core env of ``num_envs`` worlds seen through the
+    experiment's view (ego against a scripted opponent, or centralized)."""
+    core_cls = DiscreteSidewalkEnv if experiment.domain == "discrete" else ContinuousSidewalkEnv
+    core = core_cls(num_envs, device=experiment.device, seed=seed, params=experiment.env_params)
+    if experiment.opponent == "centralized":
+        return CentralizedView(core)
+    return EgoView(
+        core,
+        opponent=experiment.opponent,
+        ego=experiment.ego,
+        end_on_ego_done=experiment.end_on_ego_done,
+        opponent_kwargs=experiment.opponent_params,
+    )
+
+
+def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
+    """Write ``path`` through a temporary file beside it and an atomic rename: readers see old or new, never half."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def package_versions() -> dict[str, str]:
+    import tensordict
+    import torchrl
+
+    import sidewalk
+
+    return {
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "torchrl": torchrl.__version__,
+        "tensordict": tensordict.__version__,
+        "sidewalk": sidewalk.__version__,
+    }
+
+
+def git_revision() -> str:
+    """The source tree's commit (with ``-dirty`` when it has changes), or ``unknown`` outside git."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True)
+        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=root, capture_output=True, text=True, check=True)
+        return rev.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+# ---- exact state of a running trial -----------------------------------------------------------------------------
+
+
+def _tensor_attributes(obj: Any) -> dict[str, Any]:
+    """An object's tensor, tensordict and dict-of-tensor attributes, plus its ``None`` ones (unset memories)."""
+    state = {}
+    for name, value in vars(obj).items():
+        if isinstance(value, (torch.Tensor, TensorDictBase)) or (value is None and name.startswith("_")):
+            state[name] = value
+        elif isinstance(value, dict) and value and all(isinstance(v, torch.Tensor) for v in value.values()):
+            state[name] = dict(value)
+    return state
+
+
+def capture_env(view: EnvBase) -> dict[str, Any]:
+    """The running state of a view, its core env and its opponent: every world mid-episode, the generator."""
+    core = view.core
+    state = {"view": _tensor_attributes(view), "core": _tensor_attributes(core), "rng": core.generator.get_state()}
+    if getattr(view, "opponent", None) is not None:
+        state["opponent"] = _tensor_attributes(view.opponent)
+    return state
+
+
+def restore_env(view: EnvBase, state: dict[str, Any]) -> None:
+    for name, value in state["view"].items():
+        setattr(view, name, value)
+    for name, value in state["core"].items():
+        setattr(view.core, name, value)
+    for name, value in state.get("opponent", {}).items():
+        setattr(view.opponent, name, value)
+    view.core.generator.set_state(state["rng"])
+
+
+def capture_rng() -> dict[str, Any]:
+    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+
+
+def restore_rng(state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch"])
+    np.random.set_state(state["numpy"])
+    random.setstate(state["python"])
+
+
+# ---- logging ----------------------------------------------------------------------------------------------------
+
+
+def make_logger(experiment: Experiment, run_dir: Path):
+    """The TorchRL logger named by ``logger.name`` (None for ``none``); optional backends fail with the install."""
+    cfg, name = experiment.logger, experiment.logger.name
+    try:
+        if name == "csv":
+            from torchrl.record.loggers.csv import CSVLogger
+
+            return CSVLogger(exp_name="logs", log_dir=str(run_dir))
+        if name == "tensorboard":
+            from torchrl.record.loggers.tensorboard import TensorboardLogger
+
+            return TensorboardLogger(exp_name="logs", log_dir=str(run_dir))
+        if name == "wandb":
+            from torchrl.record.loggers.wandb import WandbLogger
+
+            return WandbLogger(exp_name=run_dir.name, offline=cfg.offline, save_dir=str(run_dir), project=cfg.project)
+        if name == "mlflow":
+            from torchrl.record.loggers.mlflow import MLFlowLogger
+
+            uri = cfg.tracking_uri or (run_dir / "mlruns").resolve().as_uri()
+            return MLFlowLogger(exp_name=cfg.project, tracking_uri=uri)
+    except ImportError as error:
+        extra = {"tensorboard": "tensorboard", "wandb": "wandb", "mlflow": "mlflow"}[name]
+        raise ImportError(f"logger={name} needs the '{extra}' package: pip install {extra}") from error
+    return None
+
+
+def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:
+    """Outcomes of the episodes that ended inside one collected batch."""
+    done = batch.get(("next", "done")).squeeze(-1)
+    episodes = int(done.sum())
+    metrics: dict[str, float] = {"train/episodes": float(episodes)}
+    if episodes == 0:
+        return metrics
+    reached = batch.get(("next", "world", "info", "reached_goal")).squeeze(-1)[done]  # (episodes, N)
+    collided = (
+        batch.get(("next", "world", "info", "collided_agent")) | batch.get(("next", "world", "info", "collided_wall"))
+    ).squeeze(-1)[done]
+    metrics["train/return"] = float(batch.get(("next", "episode_reward")).squeeze(-1)[done].mean())
+    metrics["train/success_rate"] = float(reached.float().mean())
+    metrics["train/team_success_rate"] = float(reached.all(-1).float().mean())
+    if ego is not None:
+        metrics["train/ego_success_rate"] = float(reached[:, ego].float().mean())
+        metrics["train/ego_collision_rate"] = float(collided[:, ego].float().mean())
+    return metrics
+
+
+# ---- the trial --------------------------------------------------------------------------------------------------
+
+
+class Trial:
+    """Train one learner with one seed and write its run folder (see the module docstring)."""
+
+    def __init__(self, experiment: Experiment, run_dir: str | Path, config: dict | None = None) -> None:
+        self.experiment = experiment
+        self.run_dir = Path(run_dir)
+        self.config = config or {}
+
+    def run(self, progress: bool = True) -> dict[str, float]:
+        exp = self.experiment
+        torch.set_num_threads(exp.torch_threads)  # small networks: one thread beats contention on 2 cores
+        torch.manual_seed(exp.seed)
+        np.random.seed(exp.seed)
+        random.seed(exp.seed)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+
+        # env → view → learner → collector → replay buffer → logger
+        train_env = TransformedEnv(make_view(exp, exp.num_envs, exp.seed), RewardSum())
+        eval_env = make_view(exp, exp.eval_episodes, exp.seed + EVAL_SEED_OFFSET)
+        algo: Algorithm = ALGORITHMS[exp.algo.name](exp.algo, train_env, device=exp.device)
+        frames_per_batch = math.ceil(exp.algo.frames_per_batch / exp.num_envs) * exp.num_envs
+        collector = Collector(
+            train_env,
+            algo.collection_policy(),
+            frames_per_batch=frames_per_batch,
+            total_frames=frames_per_batch * exp.iterations,
+            device=exp.device,
+            auto_register_policy_transforms=False,
+        )
+        replay_buffer = None
+        if algo.uses_replay_buffer:
+            replay_buffer = TensorDictReplayBuffer(
+                storage=LazyTensorStorage(exp.algo.buffer_size, device=exp.device), batch_size=exp.algo.batch_size
+            )
+        logger = make_logger(exp, self.run_dir)
+        ego = getattr(train_env.base_env, "ego", None)
+
+        rows: list[dict[str, float]] = []
+        start_iteration, elapsed_before = 0, 0.0
+        checkpoint_path = self.run_dir / CHECKPOINT
+        if exp.resume:
+            if not checkpoint_path.exists():
+                raise FileNotFoundError(f"resume=true but {checkpoint_path} does not exist; start without resume")
+            state = torch.load(checkpoint_path, weights_only=False)
+            algo.load_state_dict(state["algorithm"])
+            if replay_buffer is not None:
+                replay_buffer.load_state_dict(state["replay_buffer"])
+            restore_env(train_env.base_env, state["env"])
+            collector._carrier.update(state["carrier"])
+            collector._frames, collector._iter = state["collector_frames"], state["collector_iter"]
+            restore_rng(state["rng"])
+            rows, start_iteration, elapsed_before = state["rows"], state["iteration"], state["elapsed_s"]
+            self._write_metrics(rows)
+
+        def checkpoint(iteration: int, elapsed: float) -> None:
+            state = {
+                "iteration": iteration,
+                "elapsed_s": elapsed,
+                "algorithm": algo.state_dict(),
+                "replay_buffer": replay_buffer.state_dict() if replay_buffer is not None else None,
+                "env": capture_env(train_env.base_env),
+                "carrier": collector._carrier.clone(),
+                "collector_frames": collector._frames,
+                "collector_iter": collector._iter,
+                "rng": capture_rng(),
+                "rows": rows,
+            }
+            atomic_write(checkpoint_path, lambda tmp: torch.save(state, tmp))
+
+        started = time.perf_counter() - elapsed_before
+        bar = tqdm(total=exp.iterations, initial=start_iteration, disable=not progress, desc="train", unit="it")
+        iteration = start_iteration
+        last_write = time.perf_counter()
+        for batch in collector:
+            iteration += 1
+            logs = {f"train/{key}": value for key, value in algo.update(batch, replay_buffer).items()}
+            collector.update_policy_weights_()
+            row: dict[str, float] = {"iteration": iteration, "frames": iteration * frames_per_batch}
+            row.update(train_metrics(batch, ego))
+            row.update(logs)
+            if exp.eval_every and (iteration % exp.eval_every == 0 or iteration == exp.iterations):
+                rng = capture_rng()  # evaluation must not shift the training stream
+                metrics = evaluate(eval_env, algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+                restore_rng(rng)
+                row.update({f"eval/{key}": value for key, value in metrics.items()})
+            elapsed = time.perf_counter() - started
+            row["time_s"] = elapsed
+            row["frames_per_s"] = row["frames"] / max(elapsed, 1e-9)
+            rows.append(row)
+            if logger is not None:
+                for key, value in row.items():
+                    if key != "iteration" and isinstance(value, float) and math.isfinite(value):
+                        logger.log_scalar(key, value, step=int(row["frames"]))
+            self._progress(bar, row)
+            checkpoint_now = exp.checkpoint_every and iteration % exp.checkpoint_every == 0
+            if checkpoint_now:
+                checkpoint(iteration, elapsed)
+            if checkpoint_now or time.perf_counter() - last_write > 10.0 or iteration == exp.iterations:
+                self._write_metrics(rows)
+                last_write = time.perf_counter()
+            if iteration >= exp.iterations:
+                break
+        bar.close()
+        checkpoint(iteration, time.perf_counter() - started)
+        collector.shutdown()
+
+        last_eval = {key[len("eval/"):]: value for key, value in rows[-1].items() if key.startswith("eval/")}
+        final = last_eval or evaluate(eval_env, algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+        summary = {
+            **final,
+            "seed": exp.seed,
+            "iterations": exp.iterations,
+            "frames": exp.iterations * frames_per_batch,
+            "wall_clock_s": time.perf_counter() - started,
+            "versions": package_versions(),
+            "git_revision": git_revision(),
+        }
+        atomic_write(self.run_dir / SUMMARY, lambda tmp: tmp.write_text(json.dumps(summary, indent=2, default=str)))
+        return summary
+
+    def _write_metrics(self, rows: list[dict[str, float]]) -> None:
+        frame = pd.DataFrame(rows)
+        first = [c for c in ("iteration", "frames", *WALL_CLOCK_COLUMNS) if c in frame.columns]
+        frame = frame[first + sorted(c for c in frame.columns if c not in first)]
+        atomic_write(self.run_dir / METRICS, lambda tmp: frame.to_csv(tmp, index=False))
+
+    @staticmethod
+    def _progress(bar: tqdm, row: dict[str, float]) -> None:
+        postfix = {"frames": int(row["frames"])}
+        for key, label in (
+            ("train/ego_success_rate", "train_success"), ("train/team_success_rate", "team_success"),
+            ("train/return", "return"), ("eval/ego/success_rate", "eval_success"),
+        ):
+            if key in row and not (key == "train/team_success_rate" and "train/ego_success_rate" in row):
+                postfix[label] = f"{row[key]:.2f}"
+        bar.set_postfix(postfix, refresh=False)
+        bar.update(1)

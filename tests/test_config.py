@@ -1,0 +1,102 @@
+"""Configs: every group composes, YAML mirrors the schemas, and bad input fails before compute, named."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.errors import ConfigCompositionException
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from sidewalk.algos import ALGORITHMS
+from sidewalk.config import register_schemas, validate
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = ROOT / "conf"
+register_schemas()
+
+
+def composed(*overrides: str):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        [],
+        ["env=continuous", "opponent=prm", "noise=0.5", "algo=trpo"],
+        ["env=continuous", "opponent=centralized", "algo=ppo", "reward=implicit"],
+        ["opponent=random", "algo=ppo", "env.observation=vector", "logger=none"],
+        ["opponent=centralized", "reward.shaped_agents=[0]"],
+    ],
+)
+def test_valid_configs_compose_and_validate(overrides):
+    experiment = validate(composed(*overrides))
+    assert experiment.algo.name == composed(*overrides).algo.name
+
+
+@pytest.mark.parametrize("name", list(ALGORITHMS))
+def test_algo_yaml_mirrors_its_schema(name):
+    yaml = OmegaConf.load(CONF / "algo" / f"{name}.yaml")
+    defaults = dataclasses.asdict(ALGORITHMS[name].Config())
+    assert {k: v for k, v in yaml.items() if k != "defaults"} == defaults
+
+
+@pytest.mark.parametrize(
+    "overrides, named",
+    [
+        (["env=foo"], "discrete"),  # an unknown option lists the valid ones
+        (["opponent=foo"], "dijkstra"),
+        (["algo=foo"], "trpo"),
+        (["reward=foo"], "implicit"),
+        (["logger=foo"], "tensorboard"),
+        (["seed=abc"], "abc"),
+        (["noise=abc"], "abc"),
+        (["foo=1"], "foo"),
+        (["algo.lr=fast"], "fast"),
+        (["env.width_cells=2.5"], "2.5"),
+        (["num_envs=0"], "num_envs=0"),
+        (["iterations=0"], "iterations=0"),
+        (["eval_episodes=-3"], "eval_episodes=-3"),
+        (["noise=1.5"], "noise=1.5"),
+        (["env=continuous", "opponent=prm", "algo=trpo", "noise=-0.1"], "noise=-0.1"),
+        (["algo.lr=-1"], "algo.lr=-1"),
+        (["algo.gamma=1.5"], "algo.gamma=1.5"),
+        (["algo.eps_end=2.0"], "algo.eps_end=2.0"),
+        (["algo.target_update=sometimes"], "sometimes"),
+        (["env.width_cells=0"], "width_cells=0"),
+        (["env.observation=rgb"], "observation='rgb'"),
+        (["env=continuous", "opponent=prm", "algo=trpo", "env.dt_s=0"], "dt_s=0"),
+        (["reward.alpha=2"], "alpha=2"),
+        (["reward.shaped_agents=[5]"], "shaped_agents"),
+        (["device=tpu"], "device='tpu'"),
+        (["opponent=prm"], "opponent=prm does not play env=discrete"),
+        (["env=continuous", "opponent=dijkstra", "algo=trpo"], "opponent=dijkstra does not play env=continuous"),
+        (["env=continuous", "opponent=prm"], "algo=dqn does not fit env=continuous"),
+        (["opponent.ego=3"], "opponent.ego=3"),
+    ],
+)
+def test_bad_overrides_fail_naming_the_value(overrides, named):
+    with pytest.raises((ConfigCompositionException, OmegaConfBaseException, ValueError, TypeError)) as error:
+        validate(composed(*overrides))
+    message = str(error.value) + str(getattr(error.value, "__cause__", "") or "")
+    assert named in message
+
+
+@pytest.mark.parametrize(
+    "override, named", [("opponent=prm", "does not play env=discrete"), ("env=maze", "continuous"), ("noise=2", "noise=2")]
+)
+def test_cli_rejects_bad_input_before_compute(tmp_path, override, named):
+    result = subprocess.run(
+        [sys.executable, "runners/main.py", override, f"hydra.run.dir={tmp_path}/run"],
+        cwd=ROOT, capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode != 0
+    assert named in result.stderr + result.stdout
+    assert not (tmp_path / "run" / "checkpoint.pt").exists()
