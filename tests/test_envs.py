@@ -255,6 +255,9 @@ def test_continuous_wall_collision():
         if nxt[AGENT_GROUP, "done"][0, 0]:
             break
     assert nxt[AGENT_GROUP, "info", "collided_wall"][0, 0].item()
+    x, y = nxt[AGENT_GROUP, "state"][0, 0, :2].tolist()  # it stays where it was, inside the world
+    r = env.params.agent_radius_m
+    assert r <= x <= env.layout.length_m - r and r <= y <= env.layout.width_m - r
 
 
 def test_timeout_truncates():

@@ -141,6 +141,8 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         hit_wall = active & ((x < x_low) | (x > x_high) | (y < y_low) | (y > y_high))
         if self._boxes.numel():
             hit_wall = hit_wall | (active & self._touches_box(x, y))
+        # Like the grid, an agent that hits a wall stays where it was (removed, or an obstacle there).
+        x, y = torch.where(hit_wall, self._x, x), torch.where(hit_wall, self._y, y)
         present = self._present & ~hit_wall if p.remove_crashed else self._present
         x_t, y_t = x.t().contiguous(), y.t().contiguous()
         gap_sq = (x_t.unsqueeze(1) - x_t.unsqueeze(0)).square() + (y_t.unsqueeze(1) - y_t.unsqueeze(0)).square()
