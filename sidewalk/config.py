@@ -89,7 +89,7 @@ class ExperimentSchema:
     noise: float = 0.0
     device: str = "cpu"
     num_envs: int = 32
-    iterations: int = 400
+    iterations: int = 500
     eval_every: int = 50
     eval_episodes: int = 256
     checkpoint_every: int = 50
@@ -177,6 +177,18 @@ def validate(cfg: DictConfig) -> Experiment:
     params_cls = DiscreteParams if domain == "discrete" else ContinuousParams
     env_params = params_cls(**env_fields, noise=float(cfg.noise), rewards=rewards)
 
+    if domain == "discrete" and env_params.observation == "image":
+        from sidewalk.algos.networks import min_image_side
+
+        side = min_image_side()
+        height = env_params.width_cells * env_params.pixels_per_cell
+        width = env_params.length_cells * env_params.pixels_per_cell
+        if min(height, width) < side:
+            raise ValueError(
+                f"env.observation=image gives {height}×{width} px (cells × pixels_per_cell={env_params.pixels_per_cell}); "
+                f"the paper's conv stack needs at least {side} px per side: raise env.pixels_per_cell or use "
+                "env.observation=vector"
+            )
     if domain == "discrete":
         n_agents = grid_layout(env_params.layout, env_params.width_cells, env_params.length_cells).n_agents
     else:

@@ -48,6 +48,18 @@ def test_algo_yaml_mirrors_its_schema(name):
     assert {k: v for k, v in yaml.items() if k != "defaults"} == defaults
 
 
+@pytest.mark.parametrize("name", ["random", "dijkstra", "prm"])
+def test_opponent_yaml_mirrors_the_constructor_defaults(name):
+    import inspect
+
+    from sidewalk.views import opponent_class
+
+    yaml = OmegaConf.to_container(OmegaConf.load(CONF / "opponent" / f"{name}.yaml").params)
+    parameters = inspect.signature(opponent_class(name).__init__).parameters
+    defaults = {k: p.default for k, p in parameters.items() if k not in ("self", "env", "controlled", "ego")}
+    assert yaml == defaults
+
+
 @pytest.mark.parametrize(
     "overrides, named",
     [
@@ -78,8 +90,9 @@ def test_algo_yaml_mirrors_its_schema(name):
         (["device=tpu"], "device='tpu'"),
         (["opponent=prm"], "opponent=prm does not play env=discrete"),
         (["env=continuous", "opponent=dijkstra", "algo=trpo"], "opponent=dijkstra does not play env=continuous"),
-        (["env=continuous", "opponent=prm"], "algo=dqn does not fit env=continuous"),
+        (["env=continuous", "algo=dqn"], "algo=dqn does not fit env=continuous"),
         (["opponent.ego=3"], "opponent.ego=3"),
+        (["env.length_cells=6"], "14 px per side"),
     ],
 )
 def test_bad_overrides_fail_naming_the_value(overrides, named):

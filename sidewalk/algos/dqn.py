@@ -27,7 +27,9 @@ class DQNConfig(AlgoConfig):
 
     name: str = "dqn"
     frames_per_batch: int = 128  # one iteration: 128 env steps (e.g. 4 steps of 32 worlds)
-    gamma: float = 0.99
+    # With the explicit reward, at 0.99 "let the other agent pass first" is worth nearly as much as walking and
+    # DQN wavered between the two (eval success flipping 0/1 over 64k frames); at 0.95 it settles by ~40k frames.
+    gamma: float = 0.95
     lr: float = 5e-4  # OpenAI baselines' DQN default
     max_grad_norm: float = 10.0
     hidden: int = 256  # the paper's dense layer

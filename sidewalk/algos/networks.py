@@ -10,6 +10,15 @@ from torchrl.modules import MLP, ConvNet
 PAPER_CONV = {"num_cells": [32, 64, 64], "kernel_sizes": [4, 4, 2], "strides": [2, 2, 1]}
 
 
+def min_image_side(conv: dict | None = None) -> int:
+    """The smallest image side the conv stack accepts (14 px for the paper's), working back from one output."""
+    conv = PAPER_CONV if conv is None else conv
+    side = 1
+    for kernel, stride in reversed(list(zip(conv["kernel_sizes"], conv["strides"]))):
+        side = (side - 1) * stride + kernel
+    return side
+
+
 class ImageEncoder(nn.Module):
     """uint8 grey images (..., C, H, W) → features, through the paper's conv stack (ReLU), flattened."""
 
