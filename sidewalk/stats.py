@@ -1,0 +1,139 @@
+"""Statistics over seeds: mean and standard error (the paper's curves), interquartile mean and stratified-bootstrap
+confidence intervals (the rliable way: Agarwal et al., "Deep RL at the Edge of the Statistical Precipice", 2021).
+
+Scores are arrays of shape (runs,) or (runs, tasks): one value per seed (run), optionally for several tasks
+(settings aggregated together). A stratified bootstrap resamples the runs of each task separately, with
+replacement, so every resample keeps each task's number of runs; with one task it is the ordinary bootstrap over
+runs. Intervals are percentile intervals, as rliable computes them.
+
+The resampling is ``scipy.stats.bootstrap``, which resamples each of several samples independently: given one
+sample per task, that is exactly rliable's stratified bootstrap. (``rliable.library`` itself does not import next to
+pandas 3 with arch 7, and its ``StratifiedBootstrap`` rejects arch 8's ``random_state`` handling; scipy is a
+dependency of this package anyway.) The interquartile mean is ``scipy.stats.trim_mean(scores, 0.25, axis=None)``,
+which is what ``rliable.metrics.aggregate_iqm`` computes.
+
+Few runs: with one run per task there is nothing to resample, so the interval is NaN and ``Interval.note`` says so;
+with two runs a task's resamples take only three distinct values, so the interval is computed but flagged coarse.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.stats
+
+from sidewalk._checks import check_choice, check_int, check_range
+
+# The statistics an interval can be asked for by name; each maps scores (..., values) to (...).
+STATISTICS: dict[str, Callable[[np.ndarray, int], np.ndarray]] = {
+    "mean": lambda x, axis: np.mean(x, axis=axis),
+    "median": lambda x, axis: np.median(x, axis=axis),
+    "iqm": lambda x, axis: scipy.stats.trim_mean(x, 0.25, axis=axis),
+}
+
+
+@dataclass(frozen=True)
+class Interval:
+    """A point estimate with its confidence interval; ``low``/``high`` are NaN where no interval exists, and
+    ``note`` says why (or that the interval is coarse)."""
+
+    point: float
+    low: float
+    high: float
+    runs: int  # the fewest runs of any task
+    note: str = ""
+
+
+def as_scores(scores: np.ndarray | list) -> np.ndarray:
+    """Scores as a float array (runs, tasks); a 1-d array is one task. Raises on an empty or >2-d array."""
+    array = np.asarray(scores, dtype=float)
+    if array.ndim == 1:
+        array = array[:, None]
+    if array.ndim != 2 or array.size == 0:
+        raise ValueError(
+            f"scores must be a non-empty (runs,) or (runs, tasks) array; got shape {array.shape}"
+        )
+    return array
+
+
+def mean_se(values: np.ndarray | list, axis: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean, standard error ``std(ddof=1) / sqrt(n)`` and count ``n`` along ``axis``, ignoring NaNs.
+
+    Where fewer than two values are present the standard error is NaN (one seed has no spread to estimate);
+    where none are, the mean is NaN too.
+    """
+    array = np.asarray(values, dtype=float)
+    count = np.sum(~np.isnan(array), axis=axis)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices: NaN is the intended answer
+        mean = np.nanmean(array, axis=axis)
+        std = np.nanstd(array, axis=axis, ddof=1)
+    se = np.where(count >= 2, std / np.sqrt(np.maximum(count, 1)), np.nan)
+    return mean, se, count
+
+
+def iqm(scores: np.ndarray | list) -> float:
+    """Interquartile mean of every score (runs × tasks pooled): the mean of the middle 50 %, as rliable's
+    ``aggregate_iqm``. With fewer than four scores nothing is trimmed and it equals the mean."""
+    return float(scipy.stats.trim_mean(as_scores(scores), 0.25, axis=None))
+
+
+def interval_estimate(
+    scores: np.ndarray | list,
+    statistic: str | Callable[[np.ndarray, int], np.ndarray] = "iqm",
+    *,
+    confidence: float = 0.95,
+    n_resamples: int = 10_000,
+    seed: int = 0,
+) -> Interval:
+    """``statistic`` of ``scores`` (runs,) or (runs, tasks) with a stratified-bootstrap percentile interval.
+
+    ``statistic`` is ``"iqm"``, ``"mean"``, ``"median"`` or a function ``f(values, axis)`` reducing ``axis`` of
+    the pooled scores of all tasks. The same ``seed`` gives the same interval. NaN scores (a metric undefined in a
+    run, e.g. path efficiency with no arrival) are dropped per task first.
+    """
+    if isinstance(statistic, str):
+        check_choice("statistic", statistic, STATISTICS)
+        reduce = STATISTICS[statistic]
+    else:
+        reduce = statistic
+    check_range("confidence", confidence, 0.0, 1.0, low_open=True)
+    if confidence == 1.0:  # check_range's upper bound is closed; a 100 % interval is every resample's range
+        raise ValueError(f"confidence={confidence!r} is out of range; valid: (0.0, 1.0)")
+    check_int("n_resamples", n_resamples, 1)
+    array = as_scores(scores)
+    tasks = [column[~np.isnan(column)] for column in array.T]
+    runs = min(len(task) for task in tasks)
+    if runs == 0:
+        return Interval(math.nan, math.nan, math.nan, 0, "no finite score")
+    pooled = np.concatenate(tasks)
+    point = float(reduce(pooled, -1))
+    if runs < 2:
+        return Interval(
+            point, math.nan, math.nan, runs, "1 run: no interval (a bootstrap needs ≥ 2 runs per task)"
+        )
+
+    def pooled_statistic(*samples: np.ndarray, axis: int = -1) -> np.ndarray:
+        return reduce(np.concatenate(samples, axis=axis), axis)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter(
+            "ignore"
+        )  # identical scores give a degenerate (zero-width) interval: that is fine
+        result = scipy.stats.bootstrap(
+            tuple(tasks),
+            pooled_statistic,
+            n_resamples=n_resamples,
+            vectorized=True,
+            paired=False,  # each task resampled on its own: the stratified bootstrap
+            confidence_level=confidence,
+            method="percentile",
+            rng=np.random.default_rng(seed),
+        )
+    note = "2 runs: coarse interval (few distinct resamples)" if runs == 2 else ""
+    low, high = float(result.confidence_interval.low), float(result.confidence_interval.high)
+    return Interval(point, low, high, runs, note)

@@ -1,0 +1,451 @@
+"""The reporting tools: statistics against hand-computed values, reports on synthetic and real run folders, broken run
+folders reported and skipped, renders, and the experiment presets composing into valid sweeps."""
+
+from __future__ import annotations
+
+import importlib.util
+import itertools
+import json
+import math
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import scipy.stats
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from sidewalk.config import register_schemas, validate
+from sidewalk.report import RunFolderError, Settings, find_run_folders, load_run, write_report
+from sidewalk.stats import interval_estimate, iqm, mean_se
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = ROOT / "conf"
+register_schemas()
+
+PRESETS = (
+    "fig5_discrete",
+    "fig5_continuous",
+    "fig6_discrete",
+    "fig6_continuous",
+    "fig7_discrete",
+    "fig7_continuous",
+    "fig8",
+)
+# The paper's set-ups (§6): what each preset must sweep, on what, for how long.
+EXPECTED = {
+    "fig5_discrete": ("discrete", "dqn", 5000, {"opponent": "random,dijkstra,centralized"}),
+    "fig5_continuous": ("continuous", "trpo", 5000, {"opponent": "random,prm,centralized"}),
+    "fig6_discrete": ("discrete", "dqn", 2000, {"noise": "0.0,0.1,0.2"}),
+    "fig6_continuous": ("continuous", "trpo", 5000, {"noise": "0.01,0.5,1.5"}),
+    "fig7_discrete": ("discrete", "dqn", 5000, {"opponent": "random,dijkstra,centralized"}),
+    "fig7_continuous": ("continuous", "trpo", 5000, {"opponent": "random,prm,centralized"}),
+    "fig8": ("continuous", "trpo", 5000, {"reward": "explicit,implicit"}),
+}
+TINY_SWEEP = [
+    "-m",
+    "seed=0,1",
+    "num_envs=4",
+    "iterations=4",
+    "eval_every=2",
+    "eval_episodes=8",
+    "algo.frames_per_batch=16",
+    "algo.batch_size=16",
+    "algo.learning_starts=0",
+    "logger=none",
+]
+
+
+# ---- statistics ---------------------------------------------------------------------------------------------------
+
+
+def test_mean_and_standard_error_match_hand_computed_values():
+    mean, se, n = mean_se([0.2, 0.4, 0.6])
+    assert (float(mean), int(n)) == (pytest.approx(0.4), 3)
+    assert float(se) == pytest.approx(0.2 / math.sqrt(3))  # std(ddof=1) = 0.2
+    # Per x across seeds (axis 1), NaN where a seed did not evaluate; one value has no standard error.
+    mean, se, n = mean_se([[1.0, 3.0], [2.0, np.nan]], axis=1)
+    assert mean.tolist() == [2.0, 2.0] and n.tolist() == [2, 1]
+    assert se[0] == pytest.approx(1.0) and np.isnan(se[1])
+
+
+def test_iqm_is_the_25_percent_trimmed_mean_of_all_scores():
+    scores = np.array(
+        [[0.0, 10.0], [1.0, 2.0], [3.0, 4.0], [5.0, 100.0]]
+    )  # 8 scores; the 2 lowest and 2 highest go
+    assert iqm(scores) == pytest.approx(np.mean([2.0, 3.0, 4.0, 5.0]))
+    assert iqm([0.2, 0.4, 0.9]) == pytest.approx(0.5)  # fewer than 4 scores: nothing trimmed
+    metrics = pytest.importorskip("rliable.metrics")
+    assert iqm(scores) == pytest.approx(metrics.aggregate_iqm(scores))
+
+
+def test_interval_is_the_stratified_percentile_bootstrap_of_scipy():
+    rng = np.random.default_rng(1)
+    scores = np.stack([rng.normal(0.3, 0.1, 6), rng.normal(0.8, 0.05, 6)], axis=1)  # 6 runs × 2 tasks
+    got = interval_estimate(scores, "mean", n_resamples=2000, seed=7)
+    # The same resampling done by hand: each task's runs resampled on their own, the mean of everything.
+    expected = scipy.stats.bootstrap(
+        (scores[:, 0], scores[:, 1]),
+        lambda a, b, axis: np.concatenate([a, b], axis=axis).mean(axis=axis),
+        n_resamples=2000,
+        method="percentile",
+        paired=False,
+        vectorized=True,
+        rng=np.random.default_rng(7),
+    ).confidence_interval
+    assert (got.low, got.high) == (pytest.approx(expected.low), pytest.approx(expected.high))
+    assert got.point == pytest.approx(scores.mean())
+    assert interval_estimate(scores, "mean", n_resamples=2000, seed=7) == got  # a seed fixes the interval
+
+
+def test_interval_covers_the_true_mean_and_shrinks_with_more_runs():
+    rng = np.random.default_rng(0)
+    widths = []
+    for runs in (5, 50, 500):
+        interval = interval_estimate(rng.normal(0.5, 0.2, runs), "mean", n_resamples=2000)
+        assert interval.low < 0.5 < interval.high
+        widths.append(interval.high - interval.low)
+    assert widths[0] > widths[1] > widths[2]
+    assert widths[1] / widths[2] == pytest.approx(math.sqrt(10), rel=0.35)  # width ∝ 1/√n
+
+
+def test_one_run_has_no_interval_and_two_runs_a_coarse_one():
+    one = interval_estimate([0.7])
+    assert one.point == 0.7 and math.isnan(one.low) and math.isnan(one.high) and "1 run" in one.note
+    two = interval_estimate([0.2, 0.6], "mean", n_resamples=1000)
+    assert 0.2 <= two.low <= two.high <= 0.6 and "coarse" in two.note
+    same = interval_estimate([1.0, 1.0, 1.0])
+    assert (same.point, same.low, same.high) == (1.0, 1.0, 1.0)
+    with pytest.raises(ValueError, match="statistic='mode'"):
+        interval_estimate([1.0, 2.0], "mode")
+    with pytest.raises(ValueError, match="confidence=1.5"):
+        interval_estimate([1.0, 2.0], confidence=1.5)
+
+
+# ---- synthetic run folders ------------------------------------------------------------------------------------------
+
+
+def write_run(folder: Path, cfg, final: dict[str, float], iterations: int = 10) -> None:
+    """A run folder as runners/main.py writes it, with made-up numbers: evaluations at iterations 5 and 10 rising
+    linearly to ``final``."""
+    folder.mkdir(parents=True)
+    OmegaConf.save(cfg, folder / "config.yaml", resolve=True)
+    rows = []
+    for iteration in range(1, iterations + 1):
+        row = {
+            "iteration": iteration,
+            "frames": iteration * 128,
+            "time_s": 0.1 * iteration,
+            "frames_per_s": 1280.0,
+            "train/loss": 1.0 / iteration,
+        }
+        if iteration % 5 == 0:
+            row.update({f"eval/{k}": v * iteration / iterations for k, v in final.items()})
+        rows.append(row)
+    pd.DataFrame(rows).to_csv(folder / "metrics.csv", index=False)
+    summary = {
+        **final,
+        "seed": cfg.seed,
+        "iterations": iterations,
+        "frames": iterations * 128,
+        "wall_clock_s": 1.0,
+    }
+    (folder / "summary.json").write_text(json.dumps(summary))
+
+
+def outcomes(cfg, value: float) -> dict[str, float]:
+    """Summary metrics of both agents: the learner's success ``value``, the other's ``1 - value``."""
+    agents = {"agent0": value, "agent1": 1.0 - value}
+    if cfg.opponent.name != "centralized":
+        agents.update({"ego": value, "other": 1.0 - value})
+    final = {"team/success_rate": value * (1.0 - value)}
+    for agent, success in agents.items():
+        final.update({f"{agent}/success_rate": success, f"{agent}/collision_rate": 1.0 - success})
+    return final
+
+
+def write_sweep(root: Path, preset: str, sweep: dict[str, list[str]], seeds: list[int]) -> None:
+    """Synthetic runs of a preset's sweep, configs composed from the real preset (inside an initialised Hydra);
+    the learner's final success is 0.2 + 0.2 · seed."""
+    (root / preset).mkdir(parents=True)
+    (root / preset / "multirun.yaml").write_text("# a sweep folder\n")
+    key, values = next(iter(sweep.items()))
+    for job, (value, seed) in enumerate(itertools.product(values, seeds)):
+        cfg = compose(
+            config_name="config", overrides=[f"+experiment={preset}", f"{key}={value}", f"seed={seed}"]
+        )
+        write_run(root / preset / f"{job}_{key}={value},seed={seed}", cfg, outcomes(cfg, 0.2 + 0.2 * seed))
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("synthetic")
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        write_sweep(root, "fig5_discrete", {"opponent": ["random", "dijkstra", "centralized"]}, [0, 1, 2])
+        write_sweep(root, "fig5_continuous", {"opponent": ["random", "prm", "centralized"]}, [0, 1])
+        write_sweep(root, "fig6_discrete", {"noise": ["0.0", "0.1", "0.2"]}, [0, 1])
+        write_sweep(root, "fig8", {"reward": ["explicit", "implicit"]}, [0, 1])
+    return root
+
+
+def test_report_on_synthetic_runs_draws_every_figure(synthetic, tmp_path):
+    result = write_report([synthetic], tmp_path / "out", Settings(n_resamples=2000))
+    names = {path.name for path in result.figures}
+    assert {
+        "fig5_success_by_opponent.png",
+        "fig6_success_under_noise.png",
+        "fig7_collisions_by_opponent.png",
+        "fig8_explicit_vs_implicit.png",
+    } <= names
+    assert {f"curves_{p}.png" for p in ("fig5_discrete", "fig5_continuous", "fig6_discrete", "fig8")} <= names
+    for path in result.figures:
+        assert path.stat().st_size > 10_000
+    report = result.report_md.read_text()
+    for name in names:
+        assert f"](figures/{name})" in report  # embedded by relative path
+    assert (
+        "Fig. 10" in report and "no run with a loadable `checkpoint.pt`" in report
+    )  # no checkpoints: skipped
+    assert result.skipped == []
+    # 3 + 3 + 3 + 2 conditions; the grid Dijkstra runs of Fig. 5 (5000 iterations) and Fig. 6 (2000) stay apart.
+    assert len(result.conditions) == 11
+
+    numbers = pd.read_csv(result.out / "report.csv")
+    fig5 = numbers[
+        (numbers.section == "fig5_success_by_opponent")
+        & (numbers.agent == "ego")
+        & numbers.condition.str.contains("discrete: DQN vs random")
+    ]
+    by_statistic = dict(zip(fig5.statistic, fig5.value))
+    assert by_statistic["mean"] == pytest.approx(0.4)  # seeds 0, 1, 2: 0.2, 0.4, 0.6
+    assert by_statistic["se"] == pytest.approx(0.2 / math.sqrt(3))
+    assert by_statistic["iqm"] == pytest.approx(0.4)
+    assert 0.2 - 1e-9 <= by_statistic["ci_low"] < 0.4 < by_statistic["ci_high"] <= 0.6 + 1e-9
+    assert "0.400 ± 0.115" in report
+    curves = pd.read_csv(result.out / "curves.csv")
+    point = curves[
+        (curves.figure == "fig5_success_by_opponent")
+        & (curves.agent == "ego")
+        & (curves.x == 1280)
+        & curves.condition.str.contains("discrete: DQN vs random")
+    ]
+    assert point["mean"].item() == pytest.approx(0.4) and point["seeds"].item() == 3
+
+
+def test_runs_of_two_seeds_get_coarse_intervals_and_centralized_runs_per_agent_rows(synthetic, tmp_path):
+    result = write_report([synthetic / "fig5_continuous"], tmp_path / "out", Settings(n_resamples=500))
+    report = result.report_md.read_text()
+    assert "(coarse)" in report
+    assert "agent 0 shaped" in report and "agent 1 unshaped" in report  # reward.shaped_agents=[0]
+    assert "TRPO (ego)" in report and "prm (other)" in report
+
+
+def test_broken_run_folders_are_reported_and_skipped(synthetic, tmp_path):
+    sweep = tmp_path / "sweep"
+    good = sorted((synthetic / "fig8").glob("*reward=explicit*"))
+    for folder in good:
+        shutil.copytree(folder, sweep / folder.name)
+    template = good[0]
+
+    def broken(name: str, drop: tuple[str, ...] = ()) -> Path:
+        folder = sweep / name
+        shutil.copytree(template, folder)
+        for file in drop:
+            (folder / file).unlink()
+        return folder
+
+    broken("no_metrics", ("metrics.csv",))
+    (broken("empty_metrics") / "metrics.csv").write_text("")
+    text = (template / "metrics.csv").read_text()
+    (broken("truncated_metrics") / "metrics.csv").write_text(text[: len(text) - 7])
+    (broken("header_only") / "metrics.csv").write_text(text.splitlines()[0] + "\n")
+    broken("no_summary", ("summary.json",))
+    (broken("bad_json") / "summary.json").write_text('{"ego/success_rate": 0.5,')
+    (broken("failed_job", ("summary.json",)) / "error.txt").write_text(
+        "Traceback...\nRuntimeError: out of memory\n"
+    )
+    summary = json.loads((template / "summary.json").read_text())
+    (broken("mismatch") / "summary.json").write_text(json.dumps({**summary, "iterations": 99}))
+    (sweep / "killed_at_start" / ".hydra").mkdir(parents=True)
+
+    reasons = {
+        "no_metrics": "no metrics.csv",
+        "empty_metrics": "metrics.csv is empty",
+        "truncated_metrics": "truncated",
+        "header_only": "no rows",
+        "no_summary": "no summary.json",
+        "bad_json": "summary.json is unreadable",
+        "failed_job": "out of memory",
+        "mismatch": "iteration 99",
+        "killed_at_start": "no config.yaml",
+    }
+    for name, reason in reasons.items():
+        with pytest.raises(RunFolderError, match=reason):
+            load_run(sweep / name)
+    assert len(find_run_folders([sweep])) == len(good) + len(reasons)
+
+    result = write_report([sweep], tmp_path / "out", Settings(n_resamples=500))
+    assert {item.path.name for item in result.skipped} == set(reasons)
+    assert len(result.conditions) == 1 and len(result.conditions[0].runs) == len(good)
+    report = result.report_md.read_text()
+    for name, reason in reasons.items():
+        line = next(line for line in report.splitlines() if f"/{name}`" in line)
+        assert reason in line
+
+
+def runner(name: str):
+    """A script of runners/ imported as a module, so its ``main(argv)`` runs in this process (no start-up cost)."""
+    spec = importlib.util.spec_from_file_location(f"runner_{name}", ROOT / "runners" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_report_cli_names_bad_paths_and_options(tmp_path, capsys):
+    report = runner("report")
+    assert report.main([str(tmp_path / "nope")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert report.main([str(tmp_path)]) == 2
+    assert "no run folder" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        report.main([str(tmp_path), "--confidence", "1.5"])
+    assert exit_info.value.code == 2 and "confidence=1.5" in capsys.readouterr().err
+    failed = tmp_path / "sweep" / "0_seed=0"
+    failed.mkdir(parents=True)
+    (failed / "error.txt").write_text("invalid config: iterations=0 is out of range\n")
+    assert report.main([str(tmp_path / "sweep")]) == 1  # a report is written, but nothing could be used
+    assert "iterations=0 is out of range" in (tmp_path / "sweep" / "report" / "report.md").read_text()
+
+
+# ---- a real sweep ---------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tiny_sweep(tmp_path_factory) -> Path:
+    sweep = tmp_path_factory.mktemp("sweep") / "tiny"
+    result = subprocess.run(
+        [sys.executable, "runners/main.py", *TINY_SWEEP, f"hydra.sweep.dir={sweep}"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    return sweep
+
+
+def test_report_on_a_real_two_seed_sweep_in_under_a_minute(tiny_sweep, tmp_path):
+    start = time.perf_counter()
+    result = subprocess.run(
+        [sys.executable, "runners/report.py", str(tiny_sweep), "--out", str(tmp_path / "out")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    seconds = time.perf_counter() - start
+    assert result.returncode == 0, result.stderr
+    assert seconds < 60
+    assert "report: " in result.stderr and result.stdout == ""  # progress on stderr only
+    figures = {p.name for p in (tmp_path / "out" / "figures").iterdir()}
+    assert figures == {"curves_tiny.png", "fig10_trajectories_discrete.png"}
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "| C1 | discrete: DQN vs dijkstra | tiny | 0, 1 | 4 | 64 |" in report
+    # The checkpoint replayed on the evaluation's worlds gives the evaluation's numbers back.
+    assert "replayed success and collision rates match its `summary.json`" in report
+    numbers = pd.read_csv(tmp_path / "out" / "report.csv")
+    summaries = [json.loads(p.read_text()) for p in sorted(tiny_sweep.glob("*/summary.json"))]
+    ego = numbers[
+        (numbers.agent == "ego") & (numbers.metric == "success_rate") & (numbers.statistic == "mean")
+    ]
+    assert ego["value"].iloc[0] == pytest.approx(np.mean([s["ego/success_rate"] for s in summaries]))
+
+
+def test_render_a_run_and_scripted_agents(tiny_sweep, tmp_path, capsys):
+    render = runner("render")
+    run = next(tiny_sweep.glob("0_*"))  # a sweep job folder: its name has '=' in it
+    assert render.main([str(run), "--episode", "1", "--out", str(tmp_path / "run.gif")]) == 0
+    assert (
+        render.main(
+            [
+                "--env",
+                "discrete",
+                "--opponent",
+                "dijkstra",
+                "--ego",
+                "random",
+                "noise=0.1",
+                "--out",
+                str(tmp_path / "scripted.gif"),
+            ]
+        )
+        == 0
+    )
+    from PIL import Image
+
+    for name in ("run.gif", "scripted.gif"):
+        with Image.open(tmp_path / name) as gif:
+            assert gif.n_frames >= 2 and gif.size[0] > gif.size[1]  # the sidewalk lies along x
+    capsys.readouterr()
+    for args, message in (
+        (["--env", "continuous", "--opponent", "dijkstra"], "does not play env=continuous"),
+        (["--env", "discrete", "--opponent", "dijkstra", "--ego", "bogus"], "--ego='bogus' is not valid"),
+        (["--env", "discrete", "--opponent", "dijkstra", "noise=2"], "noise=2.0 is out of range"),
+        (["--env", "discrete", "--opponent", "centralized"], "render a run folder trained with it"),
+        ([str(run), "--episode", "8"], "--episode=8 is out of range"),
+    ):
+        assert render.main(args) == 2, args
+        assert message in capsys.readouterr().err, args
+    for args, message in (
+        ([str(tmp_path / "nowhere")], "is not a folder"),
+        ([str(tmp_path)], "has no config.yaml"),
+        ([str(run), "--out", str(tmp_path / "a.avi")], "must end in .gif or .mp4"),
+        ([str(run), "--env", "discrete"], "not both"),
+        ([], "give a run folder"),
+    ):
+        with pytest.raises(SystemExit) as exit_info:
+            render.main(args)
+        assert exit_info.value.code == 2 and message in capsys.readouterr().err, args
+
+
+# ---- presets -------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.parametrize("scale", ["full", "quick"])
+def test_presets_compose_into_valid_sweeps(preset, scale):
+    domain, algo, iterations, sweep = EXPECTED[preset]
+    ((key, values),) = sweep.items()
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose(
+            config_name="config",
+            overrides=[f"+experiment={preset}", f"scale={scale}"],
+            return_hydra_config=True,
+        )
+        jobs = [
+            compose(
+                config_name="config",
+                overrides=[f"+experiment={preset}", f"scale={scale}", f"{key}={v}", "seed=1"],
+            )
+            for v in values.split(",")
+        ]
+    params = dict(cfg.hydra.sweeper.params)
+    assert params == {**sweep, "seed": "0,1,2" if scale == "full" else "0,1"}
+    assert (cfg.env.domain, cfg.algo.name) == (domain, algo)
+    assert cfg.iterations == (iterations if scale == "full" else 20)
+    assert cfg.hydra.runtime.choices.experiment == preset
+    validate(cfg)  # a plain run of the preset (no -m) is valid too
+    # Every job of the sweep composes and validates (no opponent of the wrong domain, say).
+    for value, job in zip(values.split(","), jobs):
+        validate(job)
+        if preset.startswith(("fig5_continuous", "fig7_continuous")):
+            assert list(job.reward.shaped_agents) == [0]  # the paper's centralized run shaped agent 0 only
+        if preset.endswith("continuous") or preset == "fig8":
+            assert job.noise == (float(value) if key == "noise" else 0.01)
