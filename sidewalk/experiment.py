@@ -316,7 +316,9 @@ class Trial:
             "versions": package_versions(),
             "git_revision": git_revision(),
         }
-        atomic_write(self.run_dir / SUMMARY, lambda tmp: tmp.write_text(json.dumps(summary, indent=2, default=str)))
+        # Strict JSON: an undefined metric (no agent arrived, so no path efficiency) is null, not NaN.
+        strict = {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in summary.items()}
+        atomic_write(self.run_dir / SUMMARY, lambda tmp: tmp.write_text(json.dumps(strict, indent=2, default=str)))
         return summary
 
     def _write_metrics(self, rows: list[dict[str, float]]) -> None:

@@ -193,6 +193,8 @@ def load_run(run_dir: Path, family: str | None = None) -> Run:
         raise RunFolderError(f"{SUMMARY} is unreadable: {error}") from error
     if not isinstance(summary, dict):
         raise RunFolderError(f"{SUMMARY} is not a JSON object")
+    # Undefined metrics are written as null (strict JSON); the statistics read them as NaN.
+    summary = {k: math.nan if v is None else v for k, v in summary.items()}
     last = int(metrics["iteration"].iloc[-1])
     if "iterations" in summary and int(summary["iterations"]) != last:
         raise RunFolderError(
