@@ -191,14 +191,15 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
 
         # Who is in the world after the move: crashing into a wall removes an agent unless remove_crashed=False.
         present = self._present & ~hit_wall if self.params.remove_crashed else self._present
-        cell_after = (new_row * self.cols + new_col).t().contiguous()
-        cell_before = (row * self.cols + col).t().contiguous()
-        mover_t = mover.t().contiguous()
-        shared = (cell_after.unsqueeze(1) == cell_after.unsqueeze(0)) & present.t().contiguous().unsqueeze(0)
+        # One transposing copy for all four (B, N) planes of the pairwise checks.
+        cell_after, cell_before, mover_t, present_t = (
+            torch.stack([new_row * self.cols + new_col, row * self.cols + col, mover, present]).transpose(1, 2).contiguous()
+        )
+        shared = (cell_after.unsqueeze(1) == cell_after.unsqueeze(0)) & present_t.bool().unsqueeze(0)
         swapped = (
             (cell_after.unsqueeze(1) == cell_before.unsqueeze(0))
             & (cell_before.unsqueeze(1) == cell_after.unsqueeze(0))
-            & mover_t.unsqueeze(0)
+            & mover_t.bool().unsqueeze(0)
         )
         hit_agent = mover & ((shared | swapped) & self._not_self).any(1).t()
         reached = mover & ~hit_agent & (new_row == self._goal_row) & (new_col == self._goal_col)
