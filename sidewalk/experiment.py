@@ -47,11 +47,6 @@ CHECKPOINT = "checkpoint.pt"
 METRICS = "metrics.csv"
 SUMMARY = "summary.json"
 WALL_CLOCK_COLUMNS = ("time_s", "frames_per_s")
-# What the replay buffer keeps of a transition (the "world" group and info are for metrics, not learning).
-TRANSITION_KEYS = (
-    "observation", "action",
-    ("next", "observation"), ("next", "reward"), ("next", "done"), ("next", "terminated"), ("next", "truncated"),
-)
 
 
 def make_view(experiment: Experiment, num_envs: int, seed: int) -> EnvBase:

@@ -19,6 +19,13 @@ from sidewalk.algos.base import AlgoConfig, Algorithm
 from sidewalk.algos.networks import DuelingHead, is_image_spec, make_encoder
 
 
+# What the replay buffer keeps of a transition (the "world" group and info are for metrics, not learning).
+TRANSITION_KEYS = (
+    "observation", "action",
+    ("next", "observation"), ("next", "reward"), ("next", "done"), ("next", "terminated"), ("next", "truncated"),
+)
+
+
 @dataclass
 class DQNConfig(AlgoConfig):
     """DQN settings. The network is the paper's; the rest are tuned for the batched env (a batch of worlds feeds
@@ -104,7 +111,7 @@ class DQN(Algorithm):
         cfg: DQNConfig = self.config
         frames = batch.numel()
         self.frames_seen += frames
-        replay_buffer.extend(batch.reshape(-1))
+        replay_buffer.extend(batch.select(*TRANSITION_KEYS).reshape(-1))
         # EGreedyModule.step loops once per frame; one call with the decayed value is the same schedule.
         self.greedy.eps.copy_(
             torch.clamp(
