@@ -202,7 +202,17 @@ class Trial:
         self.run_dir = Path(run_dir)
         self.config = config or {}
 
-    def run(self, progress: bool = True) -> dict[str, float]:
+    def run(
+        self,
+        progress: bool = True,
+        on_evaluation: Callable[[dict[str, float], float, float], bool] | None = None,
+    ) -> dict[str, float]:
+        """Train, evaluate and write the run folder; return the summary.
+
+        ``on_evaluation(metrics, started, ended)`` is called after each periodic evaluation with its metrics and
+        its ``time.perf_counter()`` bounds; returning True ends training there (the run folder is completed as
+        usual, with the iterations actually run).
+        """
         exp = self.experiment
         torch.set_num_threads(exp.torch_threads)  # small networks: one thread beats contention on 2 cores
         torch.manual_seed(exp.seed)
@@ -267,6 +277,7 @@ class Trial:
         bar = tqdm(total=exp.iterations, initial=start_iteration, disable=not progress, desc="train", unit="it")
         iteration = start_iteration
         last_write = time.perf_counter()
+        stop = False
         for batch in collector:
             iteration += 1
             logs = {f"train/{key}": value for key, value in algo.update(batch, replay_buffer).items()}
@@ -276,9 +287,12 @@ class Trial:
             row.update(logs)
             if exp.eval_every and (iteration % exp.eval_every == 0 or iteration == exp.iterations):
                 rng = capture_rng()  # evaluation must not shift the training stream
+                eval_started = time.perf_counter()
                 metrics = evaluate(eval_env, algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+                eval_ended = time.perf_counter()
                 restore_rng(rng)
                 row.update({f"eval/{key}": value for key, value in metrics.items()})
+                stop = on_evaluation is not None and bool(on_evaluation(metrics, eval_started, eval_ended))
             elapsed = time.perf_counter() - started
             row["time_s"] = elapsed
             row["frames_per_s"] = row["frames"] / max(elapsed, 1e-9)
@@ -291,10 +305,11 @@ class Trial:
             checkpoint_now = exp.checkpoint_every and iteration % exp.checkpoint_every == 0
             if checkpoint_now:
                 checkpoint(iteration, elapsed)
-            if checkpoint_now or time.perf_counter() - last_write > 10.0 or iteration == exp.iterations:
+            done = stop or iteration >= exp.iterations
+            if checkpoint_now or done or time.perf_counter() - last_write > 10.0:
                 self._write_metrics(rows)
                 last_write = time.perf_counter()
-            if iteration >= exp.iterations:
+            if done:
                 break
         bar.close()
         checkpoint(iteration, time.perf_counter() - started)
@@ -305,8 +320,8 @@ class Trial:
         summary = {
             **final,
             "seed": exp.seed,
-            "iterations": exp.iterations,
-            "frames": exp.iterations * frames_per_batch,
+            "iterations": iteration,
+            "frames": iteration * frames_per_batch,
             "wall_clock_s": time.perf_counter() - started,
             "versions": package_versions(),
             "git_revision": git_revision(),

@@ -209,7 +209,7 @@ def test_grid_following_is_not_a_collision():
 
 def test_grid_stepping_off_the_grid_hits_the_wall_and_removes_the_agent():
     env = DiscreteSidewalkEnv(num_envs=1, seed=0)
-    nxt, td = step(env, env.reset(), [LEFT, LEFT])  # agent 0 starts at column 0
+    nxt, _ = step(env, env.reset(), [LEFT, LEFT])  # agent 0 starts at column 0
     info = nxt[AGENT_GROUP, "info"]
     assert info["collided_wall"][0, :, 0].tolist() == [True, False]
     assert nxt[AGENT_GROUP, "reward"][0, 0].item() == pytest.approx(SPEC.c_step + SPEC.c_collision)

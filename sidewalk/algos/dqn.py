@@ -18,7 +18,6 @@ from sidewalk._checks import check_choice, check_int, check_range
 from sidewalk.algos.base import AlgoConfig, Algorithm
 from sidewalk.algos.networks import DuelingHead, is_image_spec, make_encoder
 
-
 # What the replay buffer keeps of a transition (the "world" group and info are for metrics, not learning).
 TRANSITION_KEYS = (
     "observation", "action",

@@ -36,7 +36,6 @@ import sys
 import tempfile
 import time
 from collections.abc import Sequence
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -107,33 +106,6 @@ def compose_experiment(overrides: Sequence[str]):
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=list(overrides))
     return validate(cfg)
-
-
-class _Stop(Exception):
-    """Raised from inside an evaluation to end a trial (target reached or time spent)."""
-
-
-@contextmanager
-def _eval_hook(on_eval):
-    """``Trial`` calls ``sidewalk.experiment.evaluate`` at every evaluation: wrap it for the duration of a run.
-
-    (``Trial`` has no stop callback; ``on_eval(metrics, start, end)`` may raise ``_Stop`` to end the run.)
-    """
-    import sidewalk.experiment as experiment_module
-
-    original = experiment_module.evaluate
-
-    def timed(env, policy, *, seed=None):
-        start = time.perf_counter()
-        metrics = original(env, policy, seed=seed)
-        on_eval(metrics, start, time.perf_counter())
-        return metrics
-
-    experiment_module.evaluate = timed
-    try:
-        yield
-    finally:
-        experiment_module.evaluate = original
 
 
 class _Clock:
@@ -214,16 +186,12 @@ def ours_time_to_target(
     experiment = compose_experiment(overrides)
     clock = _Clock(TARGET, seconds, eval_every * frames_per_batch, CONFIRM)
 
-    def on_eval(metrics, start, end):
-        if clock.on_eval(metrics["ego/success_rate"], start, end):
-            raise _Stop
+    def on_evaluation(metrics, start, end):
+        return clock.on_eval(metrics["ego/success_rate"], start, end)
 
-    with tempfile.TemporaryDirectory() as run_dir, _eval_hook(on_eval):
+    with tempfile.TemporaryDirectory() as run_dir:
         clock.start = time.perf_counter()
-        try:
-            Trial(experiment, run_dir).run(progress=False)
-        except _Stop:
-            pass
+        Trial(experiment, run_dir).run(progress=False, on_evaluation=on_evaluation)
     return {"learner": "ours", "num_envs": experiment.num_envs, **clock.row(),
             "settings": _our_settings(experiment, extra)}
 

@@ -70,7 +70,7 @@ def draw_plane(
 ) -> np.ndarray:
     """Continuous world seen from above (x to the right, y up): walls as a dark border, agents with heading ticks."""
     border = 4
-    width_px, height_px = int(round(length_m * pixels_per_m)), int(round(width_m * pixels_per_m))
+    width_px, height_px = round(length_m * pixels_per_m), round(width_m * pixels_per_m)
     image = np.empty((height_px + 2 * border, width_px + 2 * border, 3), dtype=np.uint8)
     image[:] = WALL
     image[border:-border, border:-border] = BACKGROUND
