@@ -32,7 +32,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from sidewalk._checks import check_choice, check_int
-from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, SidewalkEnvBase
+from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, SidewalkEnvBase, swap_in_reset
 from sidewalk.opponents.base import Opponent, env_domain
 
 VIEW_KINDS = ("ego", "centralized", "all")
@@ -165,16 +165,8 @@ class _SidewalkView(EnvBase):
         return self._output(core_out, reset=True)
 
     def _reset_proc_data(self, tensordict: TensorDictBase | None, tensordict_reset: TensorDictBase):
-        # _reset returns every world (reset ones fresh, the others as the last step left them) with every done key
-        # (False where reset), so TorchRL's masked merge, done completion and checks reduce to swapping in the new
-        # entries; keys others put at the root (a policy's recurrent state, ...) stay.
-        if tensordict is None:
-            return tensordict_reset
-        for key in self.reset_keys:
-            tensordict.pop(key, None)
-        for key, value in tensordict_reset.items():
-            tensordict.set(key, value)
-        return tensordict
+        # Like the core, _reset returns every world, so the reset output is swapped in rather than merged.
+        return swap_in_reset(tensordict, tensordict_reset, self.reset_keys)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         last = self._last
