@@ -65,6 +65,12 @@ def make_view(experiment: Experiment, num_envs: int, seed: int) -> EnvBase:
     )
 
 
+def collector_frames_per_batch(experiment: Experiment) -> int:
+    """Frames of one iteration: the learner's ``frames_per_batch`` rounded up to whole steps of every world,
+    as TorchRL's collector rounds it."""
+    return math.ceil(experiment.algo.frames_per_batch / experiment.num_envs) * experiment.num_envs
+
+
 def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
     """Write ``path`` through a temporary file beside it and an atomic rename: readers see old or new, never half."""
     tmp = path.with_name(f".{path.name}.tmp")
@@ -224,7 +230,7 @@ class Trial:
         train_env = TransformedEnv(make_view(exp, exp.num_envs, exp.seed), RewardSum())
         eval_env = make_view(exp, exp.eval_episodes, exp.seed + EVAL_SEED_OFFSET)
         algo: Algorithm = ALGORITHMS[exp.algo.name](exp.algo, train_env, device=exp.device)
-        frames_per_batch = math.ceil(exp.algo.frames_per_batch / exp.num_envs) * exp.num_envs
+        frames_per_batch = collector_frames_per_batch(exp)
         collector = Collector(
             train_env,
             algo.collection_policy(),

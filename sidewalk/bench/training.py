@@ -170,17 +170,13 @@ def our_overrides(num_envs: int | None, threads: int, seed: int, extra: Sequence
     return [*BASE_OVERRIDES, *worlds, f"torch_threads={threads}", f"seed={seed}", *extra]
 
 
-def _frames_per_batch(experiment) -> int:
-    return math.ceil(experiment.algo.frames_per_batch / experiment.num_envs) * experiment.num_envs
-
-
 def ours_time_to_target(
     num_envs: int | None, threads: int, seed: int, seconds: float, eval_every_frames: int, extra: Sequence[str] = ()
 ) -> dict:
     """Run ``Trial`` until a sustained evaluation ≥ TARGET or ``seconds`` of training time."""
-    from sidewalk.experiment import Trial
+    from sidewalk.experiment import Trial, collector_frames_per_batch
 
-    frames_per_batch = _frames_per_batch(compose_experiment(our_overrides(num_envs, threads, seed, extra)))
+    frames_per_batch = collector_frames_per_batch(compose_experiment(our_overrides(num_envs, threads, seed, extra)))
     eval_every = max(1, round(eval_every_frames / frames_per_batch))
     overrides = [*our_overrides(num_envs, threads, seed, extra), f"eval_every={eval_every}", "iterations=100000000"]
     experiment = compose_experiment(overrides)
@@ -200,10 +196,10 @@ def ours_frames_per_s(num_envs: int | None, threads: int, frames: int = FPS_FRAM
     """Frames/s of ``Trial`` at FPS_OURS after learning starts, without evaluations: the slope of metrics.csv."""
     import pandas as pd
 
-    from sidewalk.experiment import METRICS, Trial
+    from sidewalk.experiment import METRICS, Trial, collector_frames_per_batch
 
     probe = compose_experiment(our_overrides(num_envs, threads, 0, FPS_OURS))
-    frames_per_batch = _frames_per_batch(probe)
+    frames_per_batch = collector_frames_per_batch(probe)
     warm = math.ceil(max(probe.algo.learning_starts, probe.algo.batch_size) / frames_per_batch) + 1
     iterations = warm + math.ceil(frames / frames_per_batch)
     overrides = [*our_overrides(num_envs, threads, 0, FPS_OURS), "eval_every=0", "eval_episodes=1",
