@@ -3,6 +3,7 @@
     python runners/report.py results/sweeps/2026-01-01_12-00-00_fig5_discrete
     python runners/report.py results/sweeps/a results/sweeps/b --out results/report
     python runners/report.py results/sweeps --x iterations --trajectories 0     # no replay of checkpoints
+    python runners/report.py results/sweeps/reference --out results/reference --preamble notes.md
 
 Writes report.md (tables, figures embedded), report.csv (every number in report.md), curves.csv (every plotted
 point) and figures/ into --out (default: report/ inside the single path given, or inside the paths' common
@@ -30,6 +31,11 @@ def main(argv: list[str] | None = None) -> int:
         "paths", nargs="+", metavar="PATH", help="run folders or folders holding them (searched recursively)"
     )
     parser.add_argument("--out", help="output folder (default: PATH/report)")
+    parser.add_argument(
+        "--preamble",
+        metavar="FILE",
+        help="a Markdown file placed under the report's title (how the runs were made)",
+    )
     parser.add_argument("--x", choices=tuple(X_AXES), default="frames", help="x axis of the learning curves")
     parser.add_argument(
         "--trajectories",
@@ -58,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(error))
     start = time.perf_counter()
     try:
-        result = write_report(args.paths, args.out, settings)
+        result = write_report(args.paths, args.out, settings, args.preamble)
     except (FileNotFoundError, NotADirectoryError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -882,17 +882,26 @@ class ReportResult:
 
 
 def write_report(
-    paths: Sequence[str | Path], out: str | Path | None = None, settings: Settings | None = None
+    paths: Sequence[str | Path],
+    out: str | Path | None = None,
+    settings: Settings | None = None,
+    preamble: str | Path | None = None,
 ) -> ReportResult:
     """Read every run folder under ``paths`` and write the report (see the module docstring) into ``out``
     (default: ``report/`` inside the single path given, or inside the paths' common folder); PNG files
-    already in ``out/figures`` are replaced.
+    already in ``out/figures`` are replaced. ``preamble``: a Markdown file placed under the title (how the runs
+    were made, say), read before any work starts.
 
     Unusable run folders are listed in ``report.md`` with the reason and left out; a paper figure without its runs
     is skipped with a note. Raises ``FileNotFoundError`` for a missing path and ``ValueError`` when no run
     folder is found at all.
     """
     settings = settings or Settings()
+    preamble_text = ""
+    if preamble is not None:
+        if not Path(preamble).is_file():
+            raise FileNotFoundError(f"preamble {preamble} is not a file; give a Markdown file")
+        preamble_text = Path(preamble).read_text().strip()
     paths = [Path(p) for p in paths]
     if not paths:
         raise ValueError("give at least one run folder or sweep folder")
@@ -935,9 +944,14 @@ def write_report(
         f"{len(skipped)} skipped.",
         "",
     ]
+    if preamble_text:
+        md += [preamble_text, ""]
 
     md += _runs_section(conditions, numbers, out)
     md += _skipped_section(skipped)
+    from sidewalk.claims import claims_section  # claims.py builds on this module's conditions and panels
+
+    md += claims_section(conditions, numbers)
     md += ["## Paper figures", ""]
     for spec in PAPER_FIGURES:
         md += _paper_figure(spec, conditions, settings, figures_dir, figures, numbers, curves_rows, notes)

@@ -21,7 +21,15 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from sidewalk.config import register_schemas, validate
-from sidewalk.report import RunFolderError, Settings, find_run_folders, load_run, write_report
+from sidewalk.claims import check_claims
+from sidewalk.report import (
+    RunFolderError,
+    Settings,
+    find_run_folders,
+    group_conditions,
+    load_run,
+    write_report,
+)
 from sidewalk.stats import interval_estimate, iqm, mean_se
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -296,6 +304,164 @@ def test_broken_run_folders_are_reported_and_skipped(synthetic, tmp_path):
     for name, reason in reasons.items():
         line = next(line for line in report.splitlines() if f"/{name}`" in line)
         assert reason in line
+
+
+# ---- the paper's claims ----------------------------------------------------------------------------------------------
+
+
+def claim_runs(root: Path, preset: str, key: str, outcomes_by_value: dict, iterations_by_value=None) -> None:
+    """Three seeds of a preset's runs for each ``key`` value, with that value's summary metrics (equal across seeds)
+    and evaluations rising linearly to them over ``iterations_by_value`` (default 10) iterations."""
+    (root / preset).mkdir(parents=True)
+    (root / preset / "multirun.yaml").write_text("# a sweep folder\n")
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        for job, (value, seed) in enumerate(itertools.product(outcomes_by_value, [0, 1, 2])):
+            cfg = compose(
+                config_name="config", overrides=[f"+experiment={preset}", f"{key}={value}", f"seed={seed}"]
+            )
+            iterations = (iterations_by_value or {}).get(value, 10)
+            write_run(
+                root / preset / f"{job}_{key}={value},seed={seed}", cfg, outcomes_by_value[value], iterations
+            )
+
+
+def verdicts(root: Path) -> dict[str, str]:
+    conditions = group_conditions([load_run(folder) for folder in find_run_folders([root])])
+    return {v.claim: v.verdict for v in check_claims(conditions)}
+
+
+def agents(**values: float) -> dict[str, float]:
+    """Summary metrics from keyword names such as ego_success=0.9 -> {"ego/success_rate": 0.9}."""
+    names = {"success": "success_rate", "collision": "collision_rate", "path": "path_efficiency"}
+    return {f"{k.split('_')[0]}/{names[k.split('_')[1]]}": v for k, v in values.items()}
+
+
+GRID_AS_IN_THE_PAPER = {
+    "random": agents(ego_success=0.9, ego_collision=0.05, other_success=0.1),
+    "dijkstra": agents(ego_success=1.0, ego_path=1.0, other_success=1.0, other_path=0.875),
+    "centralized": agents(agent0_success=1.0, agent1_success=1.0, team_success=1.0),
+}
+
+
+def test_claims_of_the_grid_comparison_hold_when_the_runs_show_them(tmp_path):
+    # The centralized learner evaluates for 20 iterations: its curve reaches 90 % of its final value later.
+    claim_runs(tmp_path, "fig5_discrete", "opponent", GRID_AS_IN_THE_PAPER, {"centralized": 20})
+    got = verdicts(tmp_path)
+    assert got["DQN learns to avoid the random agent and reach its goal (discrete)"] == "reproduced"
+    assert (
+        got["against Dijkstra the DQN agent heads straight and the Dijkstra agent yields (discrete)"]
+        == "reproduced"
+    )
+    assert got["centralized learns the most robust policy but needs more training (discrete)"] == "reproduced"
+    # Claims of runs that were not made are listed as such, with the command that makes them.
+    not_run = [claim for claim, verdict in got.items() if verdict == "not run"]
+    assert "centralized learns the most robust policy but needs more training (continuous)" in not_run
+    assert "more noise, lower success (discrete)" in not_run and len(not_run) == 5
+
+
+def test_claims_of_the_grid_comparison_fail_when_the_runs_do_not_show_them(tmp_path):
+    claim_runs(
+        tmp_path,
+        "fig5_discrete",
+        "opponent",
+        {
+            "random": agents(ego_success=0.1, ego_collision=0.9, other_success=0.1),  # first evaluation 0.05
+            "dijkstra": agents(
+                ego_success=1.0, ego_path=0.8, other_success=1.0, other_path=1.0
+            ),  # the ego yields
+            "centralized": agents(agent0_success=0.5, agent1_success=1.0, team_success=0.5),
+        },
+    )
+    got = verdicts(tmp_path)
+    assert got["DQN learns to avoid the random agent and reach its goal (discrete)"] == "not reproduced"
+    # The ego reaches its goal but not straight; the Dijkstra agent succeeds without yielding: neither half holds.
+    assert (
+        got["against Dijkstra the DQN agent heads straight and the Dijkstra agent yields (discrete)"]
+        == "not reproduced"
+    )
+    assert (
+        got["centralized learns the most robust policy but needs more training (discrete)"]
+        == "not reproduced"
+    )
+
+
+def test_claims_of_noise_reward_and_the_unshaped_agent(tmp_path):
+    claim_runs(
+        tmp_path / "a",
+        "fig6_discrete",
+        "noise",
+        {"0.0": agents(ego_success=0.9), "0.1": agents(ego_success=0.7), "0.2": agents(ego_success=0.5)},
+    )
+    claim_runs(
+        tmp_path / "a",
+        "fig8",
+        "reward",
+        {"explicit": agents(ego_success=0.8), "implicit": agents(ego_success=0.4)},
+    )
+    claim_runs(
+        tmp_path / "a",
+        "fig5_continuous",
+        "opponent",
+        {
+            "random": agents(ego_success=0.3),
+            "centralized": agents(
+                agent0_success=0.9, agent1_success=0.0, agent1_collision=0.0, team_success=0.0
+            ),
+        },
+    )
+    got = verdicts(tmp_path / "a")
+    assert got["more noise, lower success (discrete)"] == "reproduced"
+    assert got["explicit cooperative reward learns better than implicit (continuous)"] == "reproduced"
+    unshaped = "centralized with shaping on one agent: the unshaped agent gets out of the way and never reaches its goal"
+    assert got[f"{unshaped} (continuous)"] == "reproduced"
+
+    claim_runs(
+        tmp_path / "b",
+        "fig6_discrete",
+        "noise",
+        {"0.0": agents(ego_success=0.5), "0.1": agents(ego_success=0.9), "0.2": agents(ego_success=0.5)},
+    )
+    claim_runs(
+        tmp_path / "b",
+        "fig8",
+        "reward",
+        {"explicit": agents(ego_success=0.4), "implicit": agents(ego_success=0.8)},
+    )
+    claim_runs(
+        tmp_path / "b",
+        "fig5_continuous",
+        "opponent",
+        {
+            "random": agents(ego_success=0.3),
+            "centralized": agents(
+                agent0_success=0.0, agent1_success=0.0, agent1_collision=1.0, team_success=0.0
+            ),
+        },
+    )
+    got = verdicts(tmp_path / "b")
+    assert got["more noise, lower success (discrete)"] == "not reproduced"
+    assert got["explicit cooperative reward learns better than implicit (continuous)"] == "not reproduced"
+    assert got[f"{unshaped} (continuous)"] == "partly"  # never reaches its goal, but by crashing
+
+
+def test_report_holds_the_claims_and_places_the_preamble(tmp_path):
+    claim_runs(tmp_path / "runs", "fig5_discrete", "opponent", GRID_AS_IN_THE_PAPER, {"centralized": 20})
+    preamble = tmp_path / "notes.md"
+    preamble.write_text("Made by `results/reference/run.sh` in 42 minutes.\n")
+    result = write_report([tmp_path / "runs"], tmp_path / "out", Settings(n_resamples=200), preamble)
+    report = result.report_md.read_text()
+    assert (
+        report.index("in 42 minutes") < report.index("## Conditions") < report.index("## The paper's claims")
+    )
+    row = next(
+        line for line in report.splitlines() if line.startswith("| DQN learns to avoid the random agent")
+    )
+    assert "**reproduced**" in row and "ego success 0.90 ± 0.00" in row
+    numbers = pd.read_csv(result.out / "report.csv")
+    claims = numbers[numbers.section == "claims"]
+    assert set(claims.metric) >= {"success_rate", "path_efficiency", "frames_to_learn"}
+    with pytest.raises(FileNotFoundError, match="nope.md"):
+        write_report([tmp_path / "runs"], tmp_path / "out2", preamble=tmp_path / "nope.md")
 
 
 def runner(name: str):
