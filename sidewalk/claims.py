@@ -86,6 +86,10 @@ def frames_to_learn(condition: Condition, agent: str) -> float:
     return float(reached["x"].iloc[0])
 
 
+def _frames(frames: float) -> str:
+    return "– (ends at 0)" if math.isnan(frames) else f"{frames:,.0f}"
+
+
 def area_under_curve(condition: Condition, agent: str) -> float:
     """Mean success over the evaluations during training: how fast and how well it learned."""
     points = curve(condition, agent, "success_rate", "frames")
@@ -165,13 +169,13 @@ def centralized_most_robust(panel: Sequence[Condition]) -> list[Verdict]:
     learn_others = {o.opponent: frames_to_learn(o, "ego") for o in others}
     slower = not math.isnan(learn) and all(learn > f for f in learn_others.values() if not math.isnan(f))
     verdict = "reproduced" if robust and slower else "partly" if robust or slower else "not reproduced"
-    frames = ", ".join(f"{name} {fmt(f, 0)}" for name, f in learn_others.items())
+    frames = ", ".join(f"{name} {_frames(f)}" for name, f in learn_others.items())
     return [
         Verdict(
             verdict,
             f"centralized agent 0 success {success} (team {final(c, 'team', 'success_rate')}) vs best ego "
             f"{best_success} ({best.opponent}); frames to {SETTLED:.0%} of final success: centralized "
-            f"{fmt(learn, 0)}, {frames}",
+            f"{_frames(learn)}, {frames}",
             [c, *others],
             [
                 (c, "agent0", "success_rate", success.mean),

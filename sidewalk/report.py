@@ -332,6 +332,8 @@ def describe(condition: Condition, keys: Sequence[str], limit: int | None = 4) -
     )
     if "reward.name" in ranked and "reward.alpha" in ranked:
         ranked.remove("reward.alpha")  # explicit/implicit already says it
+    if "opponent.name" in ranked:  # each opponent brings its own parameters; its name says which
+        ranked = [k for k in ranked if k == "opponent.name" or not k.startswith("opponent.")]
     shown = ranked if limit is None else ranked[:limit]
     text = ", ".join(_value(k, condition.flat.get(k), condition.domain) for k in shown)
     return text + (f", +{len(ranked) - len(shown)} more" if len(ranked) > len(shown) else "")
