@@ -164,7 +164,8 @@ def centralized_most_robust(panel: Sequence[Condition]) -> list[Verdict]:
     success = final(c, "agent0", "success_rate")
     best = max(others, key=lambda o: final(o, "ego", "success_rate").mean)
     best_success = final(best, "ego", "success_rate")
-    robust = success.mean >= best_success.mean - success.tolerance(best_success)
+    # A tie at nothing learned is not robustness: the centralized learner must also have learned something.
+    robust = success.mean >= best_success.mean - success.tolerance(best_success) and success.mean >= LEARNED
     learn = frames_to_learn(c, "agent0")
     learn_others = {o.opponent: frames_to_learn(o, "ego") for o in others}
     slower = not math.isnan(learn) and all(learn > f for f in learn_others.values() if not math.isnan(f))
@@ -196,9 +197,17 @@ def unshaped_agent_steps_aside(panel: Sequence[Condition]) -> list[Verdict]:
             continue
         shaped, unshaped = final(c, "agent0", "success_rate"), final(c, "agent1", "success_rate")
         unshaped_collision = final(c, "agent1", "collision_rate")
-        never = unshaped.mean <= NEVER
-        aside = unshaped_collision.mean <= SAFE and shaped.mean >= SUCCEEDS
-        verdict = "reproduced" if never and aside else "partly" if never else "not reproduced"
+        # "Out of the way" is judged by its effect: the shaped agent gets through. An unshaped agent that crashes
+        # (and so leaves the world) while the shaped one gets through is half of it.
+        never, through = unshaped.mean <= NEVER, shaped.mean >= SUCCEEDS
+        safely = unshaped_collision.mean <= SAFE
+        verdict = (
+            "reproduced"
+            if never and through and safely
+            else "partly"
+            if never and through
+            else "not reproduced"
+        )
         out.append(
             Verdict(
                 verdict,

@@ -20,8 +20,8 @@ import scipy.stats
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from sidewalk.config import register_schemas, validate
 from sidewalk.claims import check_claims
+from sidewalk.config import register_schemas, validate
 from sidewalk.report import (
     RunFolderError,
     Settings,
@@ -432,7 +432,7 @@ def test_claims_of_noise_reward_and_the_unshaped_agent(tmp_path):
         "fig5_continuous",
         "opponent",
         {
-            "random": agents(ego_success=0.3),
+            "random": agents(ego_success=0.0),
             "centralized": agents(
                 agent0_success=0.0, agent1_success=0.0, agent1_collision=1.0, team_success=0.0
             ),
@@ -441,7 +441,13 @@ def test_claims_of_noise_reward_and_the_unshaped_agent(tmp_path):
     got = verdicts(tmp_path / "b")
     assert got["more noise, lower success (discrete)"] == "not reproduced"
     assert got["explicit cooperative reward learns better than implicit (continuous)"] == "not reproduced"
-    assert got[f"{unshaped} (continuous)"] == "partly"  # never reaches its goal, but by crashing
+    # Everyone fails alike: a tie at zero is no robustness; the unshaped agent never arrives, but by crashing, as
+    # does the shaped one.
+    assert (
+        got["centralized learns the most robust policy but needs more training (continuous)"]
+        == "not reproduced"
+    )
+    assert got[f"{unshaped} (continuous)"] == "not reproduced"
 
 
 def test_report_holds_the_claims_and_places_the_preamble(tmp_path):
