@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sidewalk.report import PAPER_FIGURES, Condition, NumberLog, curve, figure_panels, fmt
+from sidewalk.report import PAPER_FIGURES, Condition, NumberLog, curve, figure_panels, fmt, panel_titles
 from sidewalk.stats import mean_se
 
 VERDICTS = ("reproduced", "partly", "not reproduced", "not run")
@@ -299,9 +299,11 @@ def check_claims(conditions: Sequence[Condition]) -> list[Verdict]:
     for figure, check, domains, preset in CLAIMS:
         claim = check.__doc__.strip()
         found = []
-        for panel in figure_panels(PANELS[check], conditions):
+        panels = figure_panels(PANELS[check], conditions)
+        for panel, (_, apart) in zip(panels, panel_titles(panels, PANELS[check])):
             for verdict in check(panel):
-                verdict.claim, verdict.figure = f"{claim} ({verdict.conditions[0].domain})", figure
+                where = verdict.conditions[0].domain + (f", {apart}" if apart else "")
+                verdict.claim, verdict.figure = f"{claim} ({where})", figure
                 found.append(verdict)
         tested = {v.conditions[0].domain for v in found}
         for domain in domains:

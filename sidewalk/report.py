@@ -670,7 +670,9 @@ def figure_panels(spec: PaperFigure, conditions: Sequence[Condition]) -> list[li
     return sorted(panels, key=lambda group: _sort_key(group[0]))
 
 
-def _panel_titles(panels: Sequence[Sequence[Condition]], spec: PaperFigure) -> list[str]:
+def panel_titles(panels: Sequence[Sequence[Condition]], spec: PaperFigure) -> list[tuple[str, str]]:
+    """(title, what sets it apart) of each panel: "continuous: TRPO" and, where panels of one domain and
+    algorithm differ elsewhere (iterations, say), how ("dt_s=0.2"), else ""."""
     titles = []
     for group in panels:
         first = group[0]
@@ -678,16 +680,12 @@ def _panel_titles(panels: Sequence[Sequence[Condition]], spec: PaperFigure) -> l
         if not _matches("opponent.name", spec.vary):
             title += " centralized" if first.opponent == "centralized" else f" vs {first.opponent}"
         titles.append(title)
-    # Panels of one domain and algorithm that differ elsewhere (iterations, say) say how.
-    representatives = [group[0] for group in panels]
-    extra = [
-        k
-        for k in varying_keys(representatives, ignore=("env.domain", "algo.name"))
-        if not _matches(k, spec.vary)
-    ]
-    if extra and len(set(titles)) < len(titles):
-        titles = [f"{t} ({describe(group[0], extra)})" for t, group in zip(titles, panels)]
-    return titles
+    out = []
+    for title, group in zip(titles, panels):
+        namesakes = [g[0] for t, g in zip(titles, panels) if t == title]
+        extra = [k for k in varying_keys(namesakes) if not _matches(k, spec.vary)]
+        out.append((title, describe(group[0], extra) if len(namesakes) > 1 else ""))
+    return out
 
 
 # ---- trajectories (Fig. 10) ----------------------------------------------------------------------------------------
@@ -1045,7 +1043,8 @@ def _paper_figure(
     figure = Figure(figsize=(6.2 * len(panels), 4.6))
     axes = figure.subplots(1, len(panels), squeeze=False)[0]
     final_rows = []
-    for ax, group, title in zip(axes, panels, _panel_titles(panels, spec)):
+    for ax, group, (title, apart) in zip(axes, panels, panel_titles(panels, spec)):
+        title += f" ({apart})" if apart else ""
         within = varying_keys(group)
         labels = [describe(c, within) for c in group]
         draw_curves(ax, group, labels, spec.metric, settings, curves_rows, spec.name)
