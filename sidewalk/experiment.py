@@ -220,6 +220,7 @@ class Trial:
         usual, with the iterations actually run).
         """
         exp = self.experiment
+        revision = git_revision()  # the code this process loaded, not what the checkout holds when it ends
         torch.set_num_threads(exp.torch_threads)  # small networks: one thread beats contention on 2 cores
         torch.manual_seed(exp.seed)
         np.random.seed(exp.seed)
@@ -330,7 +331,7 @@ class Trial:
             "frames": iteration * frames_per_batch,
             "wall_clock_s": time.perf_counter() - started,
             "versions": package_versions(),
-            "git_revision": git_revision(),
+            "git_revision": revision,
         }
         # Strict JSON: an undefined metric (no agent arrived, so no path efficiency) is null, not NaN.
         strict = {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in summary.items()}
