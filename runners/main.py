@@ -56,7 +56,21 @@ def main(cfg: DictConfig) -> float | None:
         if key in summary:
             print(f"  {key:22s} {summary[key]:.3f}")
     print(f"  {'wall_clock_s':22s} {summary['wall_clock_s']:.1f}")
+    if not in_sweep:  # a sweep's runs are reported together: runners/report.py <sweep folder>
+        write_plots(run_dir)
     return summary.get("ego/success_rate", summary.get("team/success_rate"))
+
+
+def write_plots(run_dir: Path) -> None:
+    """The run's learning curves, final values and trajectories in ``run_dir/report/`` (``sidewalk.report``)."""
+    from sidewalk.report import Settings, write_report
+
+    try:
+        result = write_report([run_dir], run_dir / "report", Settings(n_resamples=2000))
+    except Exception as error:  # noqa: BLE001 (the run's results are written; a plot must not turn it into a failure)
+        print(f"warning: no plots: {type(error).__name__}: {error}", file=sys.stderr)
+        return
+    print(f"  plots and report       {result.report_md} ({len(result.figures)} figures)")
 
 
 if __name__ == "__main__":

@@ -28,3 +28,4 @@ class SweepStatus(Callback):
                 first_line = path.read_text().strip().splitlines()[-1] if path.read_text().strip() else "?"
                 log.error("job failed: %s: %s", path.parent, first_line)
             raise SystemExit(f"{len(failed)} job(s) of the sweep failed; see {ERROR_FILE} in each job folder")
+        log.info("sweep done; its report: python runners/report.py %s", sweep_dir)

@@ -49,6 +49,11 @@ def test_run_folder_contents(tmp_path):
                 "min_separation", "path_efficiency", "seed", "wall_clock_s", "versions", "git_revision"):
         assert key in summary
     assert summary["ego/success_rate"] == frame["eval/ego/success_rate"].iloc[-1]
+    # A single run ends with its plots: learning curves and trajectories, embedded in report.md.
+    report = (run / "report" / "report.md").read_text()
+    for figure in (next((run / "report" / "figures").glob("curves_*.png")),
+                   run / "report" / "figures" / "fig10_trajectories_discrete.png"):
+        assert figure.stat().st_size > 10_000 and f"figures/{figure.name}" in report
 
 
 def test_same_seed_same_metrics_across_processes(tmp_path):

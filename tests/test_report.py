@@ -466,6 +466,9 @@ def test_report_holds_the_claims_and_places_the_preamble(tmp_path):
     numbers = pd.read_csv(result.out / "report.csv")
     claims = numbers[numbers.section == "claims"]
     assert set(claims.metric) >= {"success_rate", "path_efficiency", "frames_to_learn"}
+    # Runs that make no paper figure get one line, not a table of claims that were not run.
+    alone = write_report([next((tmp_path / "runs" / "fig5_discrete").iterdir())], tmp_path / "alone")
+    assert "None tested" in alone.report_md.read_text() and "**not run**" not in alone.report_md.read_text()
     with pytest.raises(FileNotFoundError, match="nope.md"):
         write_report([tmp_path / "runs"], tmp_path / "out2", preamble=tmp_path / "nope.md")
 
