@@ -14,9 +14,16 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-import numpy as np
-
-from sidewalk.report import PAPER_FIGURES, Condition, NumberLog, curve, figure_panels, fmt, panel_titles
+from sidewalk.report import (
+    PAPER_FIGURES,
+    Condition,
+    NumberLog,
+    curve,
+    figure_panels,
+    fmt,
+    panel_titles,
+    summary_values,
+)
 from sidewalk.stats import mean_se
 
 VERDICTS = ("reproduced", "partly", "not reproduced", "not run")
@@ -67,8 +74,7 @@ def learner(condition: Condition) -> str:
 
 
 def final(condition: Condition, agent: str, metric: str) -> Stat:
-    values = [float(run.summary.get(f"{agent}/{metric}", math.nan)) for run in condition.runs]
-    mean, se, _ = mean_se(np.array(values, dtype=float))
+    mean, se, _ = mean_se(summary_values(condition, f"{agent}/{metric}"))
     return Stat(float(mean), float(se))
 
 
@@ -273,34 +279,27 @@ def explicit_learns_better(panel: Sequence[Condition]) -> list[Verdict]:
     ]
 
 
-# SPEC §4, claim by claim: (figure, the check, the domains the paper makes the claim for, what to run for it)
+# SPEC §4, claim by claim: (figure, the paper figure whose panels the check reads, the check, the domains the paper
+# makes the claim for, what to run for it)
 CLAIMS = (
-    ("Fig. 5/7", avoids_random, ("discrete",), "fig5_discrete"),
-    ("Fig. 5/7", dijkstra_yields, ("discrete",), "fig5_discrete"),
-    ("Fig. 5/7", centralized_most_robust, ("discrete", "continuous"), "fig5_{domain}"),
-    ("Fig. 5/7, 10b", unshaped_agent_steps_aside, ("continuous",), "fig5_continuous"),
-    ("Fig. 6", noise_lowers_success, ("discrete", "continuous"), "fig6_{domain}"),
-    ("Fig. 8", explicit_learns_better, ("continuous",), "fig8"),
+    ("Fig. 5/7", PAPER_FIGURES[0], avoids_random, ("discrete",), "fig5_discrete"),
+    ("Fig. 5/7", PAPER_FIGURES[0], dijkstra_yields, ("discrete",), "fig5_discrete"),
+    ("Fig. 5/7", PAPER_FIGURES[0], centralized_most_robust, ("discrete", "continuous"), "fig5_{domain}"),
+    ("Fig. 5/7, 10b", PAPER_FIGURES[0], unshaped_agent_steps_aside, ("continuous",), "fig5_continuous"),
+    ("Fig. 6", PAPER_FIGURES[1], noise_lowers_success, ("discrete", "continuous"), "fig6_{domain}"),
+    ("Fig. 8", PAPER_FIGURES[3], explicit_learns_better, ("continuous",), "fig8"),
 )
-PANELS = {  # the paper figure whose panels each check reads
-    avoids_random: PAPER_FIGURES[0],
-    dijkstra_yields: PAPER_FIGURES[0],
-    centralized_most_robust: PAPER_FIGURES[0],
-    unshaped_agent_steps_aside: PAPER_FIGURES[0],
-    noise_lowers_success: PAPER_FIGURES[1],
-    explicit_learns_better: PAPER_FIGURES[3],
-}
 
 
 def check_claims(conditions: Sequence[Condition]) -> list[Verdict]:
     """A verdict for every claim of ``CLAIMS`` in every figure panel that can test it, and 'not run' for a claim
     and domain that no panel tests."""
     verdicts: list[Verdict] = []
-    for figure, check, domains, preset in CLAIMS:
+    for figure, spec, check, domains, preset in CLAIMS:
         claim = check.__doc__.strip()
         found = []
-        panels = figure_panels(PANELS[check], conditions)
-        for panel, (_, apart) in zip(panels, panel_titles(panels, PANELS[check])):
+        panels = figure_panels(spec, conditions)
+        for panel, (_, apart) in zip(panels, panel_titles(panels, spec)):
             for verdict in check(panel):
                 where = verdict.conditions[0].domain + (f", {apart}" if apart else "")
                 verdict.claim, verdict.figure = f"{claim} ({where})", figure
@@ -335,8 +334,16 @@ def claims_section(conditions: Sequence[Condition], numbers: NumberLog) -> list[
         ids = ", ".join(c.ident for c in v.conditions) or "–"
         md.append(f"| {v.claim} | {v.figure} | {ids} | **{v.verdict}** | {v.evidence} |")
         for condition, agent, metric, value in v.numbers:
-            seeds = len(condition.runs) if condition else 0
-            numbers.add("claims", condition, agent, metric, "mean", value, seeds, f"{v.claim}: {v.verdict}")
+            numbers.add(
+                "claims",
+                condition,
+                agent,
+                metric,
+                "mean",
+                value,
+                len(condition.runs),
+                f"{v.claim}: {v.verdict}",
+            )
     counts = {name: sum(v.verdict == name for v in verdicts) for name in VERDICTS}
     md += [
         "",

@@ -419,12 +419,16 @@ class Final:
     iqm: Interval
 
 
+def summary_values(condition: Condition, key: str) -> np.ndarray:
+    """``summary.json``'s ``key`` of each seed's run (NaN where a run lacks it or it is undefined)."""
+    return np.array([float(run.summary.get(key, math.nan)) for run in condition.runs], dtype=float)
+
+
 def finals(condition: Condition, agents: Sequence[str], metric: str, settings: Settings) -> list[Final]:
     """``summary.json`` values of ``<agent>/<metric>`` across seeds, with mean, SE and IQM interval."""
     out = []
     for agent in agents:
-        key = f"{agent}/{metric}"
-        values = np.array([float(run.summary.get(key, math.nan)) for run in condition.runs], dtype=float)
+        values = summary_values(condition, f"{agent}/{metric}")
         mean, se, _ = mean_se(values)
         interval = interval_estimate(
             values,

@@ -385,60 +385,33 @@ def test_claims_of_the_grid_comparison_fail_when_the_runs_do_not_show_them(tmp_p
     )
 
 
-def test_claims_of_noise_reward_and_the_unshaped_agent(tmp_path):
+def noise_reward_and_centralized_verdicts(root: Path, noise, rewards, random, centralized) -> dict[str, str]:
+    """Verdicts on grid runs with ego success ``noise`` at n = 0, 0.1, 0.2, continuous runs with ego success
+    ``rewards`` (explicit, implicit) and ``random`` against the random agent, and a centralized run's ``centralized``."""
+    levels = dict(zip(("0.0", "0.1", "0.2"), noise))
+    claim_runs(root, "fig6_discrete", "noise", {n: agents(ego_success=v) for n, v in levels.items()})
     claim_runs(
-        tmp_path / "a",
-        "fig6_discrete",
-        "noise",
-        {"0.0": agents(ego_success=0.9), "0.1": agents(ego_success=0.7), "0.2": agents(ego_success=0.5)},
+        root, "fig8", "reward", {r: agents(ego_success=v) for r, v in zip(("explicit", "implicit"), rewards)}
     )
     claim_runs(
-        tmp_path / "a",
-        "fig8",
-        "reward",
-        {"explicit": agents(ego_success=0.8), "implicit": agents(ego_success=0.4)},
-    )
-    claim_runs(
-        tmp_path / "a",
+        root,
         "fig5_continuous",
         "opponent",
-        {
-            "random": agents(ego_success=0.3),
-            "centralized": agents(
-                agent0_success=0.9, agent1_success=0.0, agent1_collision=0.0, team_success=0.0
-            ),
-        },
+        {"random": agents(ego_success=random), "centralized": centralized},
     )
-    got = verdicts(tmp_path / "a")
+    return verdicts(root)
+
+
+def test_claims_of_noise_reward_and_the_unshaped_agent(tmp_path):
+    steps_aside = agents(agent0_success=0.9, agent1_success=0.0, agent1_collision=0.0, team_success=0.0)
+    got = noise_reward_and_centralized_verdicts(tmp_path / "a", (0.9, 0.7, 0.5), (0.8, 0.4), 0.3, steps_aside)
     assert got["more noise, lower success (discrete)"] == "reproduced"
     assert got["explicit cooperative reward learns better than implicit (continuous)"] == "reproduced"
     unshaped = "centralized with shaping on one agent: the unshaped agent gets out of the way and never reaches its goal"
     assert got[f"{unshaped} (continuous)"] == "reproduced"
 
-    claim_runs(
-        tmp_path / "b",
-        "fig6_discrete",
-        "noise",
-        {"0.0": agents(ego_success=0.5), "0.1": agents(ego_success=0.9), "0.2": agents(ego_success=0.5)},
-    )
-    claim_runs(
-        tmp_path / "b",
-        "fig8",
-        "reward",
-        {"explicit": agents(ego_success=0.4), "implicit": agents(ego_success=0.8)},
-    )
-    claim_runs(
-        tmp_path / "b",
-        "fig5_continuous",
-        "opponent",
-        {
-            "random": agents(ego_success=0.0),
-            "centralized": agents(
-                agent0_success=0.0, agent1_success=0.0, agent1_collision=1.0, team_success=0.0
-            ),
-        },
-    )
-    got = verdicts(tmp_path / "b")
+    both_crash = agents(agent0_success=0.0, agent1_success=0.0, agent1_collision=1.0, team_success=0.0)
+    got = noise_reward_and_centralized_verdicts(tmp_path / "b", (0.5, 0.9, 0.5), (0.4, 0.8), 0.0, both_crash)
     assert got["more noise, lower success (discrete)"] == "not reproduced"
     assert got["explicit cooperative reward learns better than implicit (continuous)"] == "not reproduced"
     # Everyone fails alike: a tie at zero is no robustness; the unshaped agent never arrives, but by crashing, as
