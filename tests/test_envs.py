@@ -177,6 +177,33 @@ def test_scripted_continuous_episode_returns(alpha):
     assert rollout["done"][:, -1].all() and not rollout["done"][:, :-1].any()
 
 
+def test_crashed_agent_is_not_paid_for_the_others_arrival_in_the_grid():
+    # Agent 0 steps off the top of the grid in the very step agent 1 steps onto its goal; SPEC §1 (2026-11-23):
+    # the cooperative term goes only to agents that have not crashed, so alpha changes nothing for agent 0.
+    layout = GridLayout(rows=7, cols=15, starts=((0, 5), (3, 1)), goals=((0, 14), (3, 0)), center_row=3.0)
+    rewards = {}
+    for alpha in (1.0, 0.0):
+        env = DiscreteSidewalkEnv(num_envs=1, seed=0, layout=layout, rewards={"alpha": alpha})
+        nxt, _ = step(env, env.reset(), [UP, LEFT])
+        assert nxt[AGENT_GROUP, "info", "collided_wall"][0, 0] and nxt[AGENT_GROUP, "info", "reached_goal"][0, 1]
+        rewards[alpha] = nxt[AGENT_GROUP, "reward"][0, :, 0]
+    assert rewards[1.0][0].item() == rewards[0.0][0].item() == pytest.approx(SPEC.c_step + SPEC.c_collision + 3 * SPEC.c_center)
+    assert rewards[1.0][1].item() == rewards[0.0][1].item() == pytest.approx(SPEC.c_step + SPEC.c_goal)
+
+
+def test_crashed_agent_is_not_paid_for_a_later_arrival_in_the_continuous_world():
+    # Agent 0 turns into the side wall at once; agent 1 walks its free lane to its goal afterwards.
+    env = ContinuousSidewalkEnv(num_envs=1, seed=0, layout=straight_lanes_plane(), rewards={"alpha": 1.0})
+    remaining = reference_walk(env.params, 9.0)
+    rollout = play(env, [[[1.0, -math.pi / 8], [1.0, 0.0]]] * len(remaining))
+    info = rollout[AGENT_GROUP, "info"][0, -1]
+    assert info["collided_wall"][0] and info["reached_goal"][1]
+    reward_0 = rollout[AGENT_GROUP, "reward"][0, :, 0, 0]
+    crash_step = int(rollout[AGENT_GROUP, "done"][0, :, 0, 0].float().argmax())
+    assert reward_0[crash_step + 1 :].abs().max().item() == 0.0  # nothing at agent 1's arrival
+    assert rollout[AGENT_GROUP, "reward"][0, -1, 1, 0].item() > SPEC.c_goal / 2  # agent 1 did arrive then
+
+
 # ---- collisions --------------------------------------------------------------------------------------------------
 
 
@@ -245,6 +272,36 @@ def test_continuous_discs_that_touch_collide():
         if nxt["done"].any():
             break
     assert nxt[AGENT_GROUP, "info", "collided_agent"].all()
+
+
+def head_on_plane(gap_m: float, lane_offset_m: float = 0.0) -> PlaneLayout:
+    """Two agents facing each other ``gap_m`` apart in the middle of a 10 m × 3 m world, agent 1 shifted across by
+    ``lane_offset_m``."""
+    return PlaneLayout(
+        length_m=10.0, width_m=3.0, starts=((4.5, 1.5), (4.5 + gap_m, 1.5 + lane_offset_m)), headings=(0.0, math.pi),
+        goals=((9.5, 1.5), (0.5, 1.5 + lane_offset_m)),
+    )
+
+
+def test_continuous_agents_cannot_pass_through_each_other_at_any_dt():
+    # dt 1.0 s: full acceleration brings both to 1 m/s in the first step, closing at 2 m/s; 1 m apart, they end the
+    # step swapped and 1 m apart, discs never overlapping at either end of the step -- only the swept check sees it.
+    env = ContinuousSidewalkEnv(num_envs=1, seed=0, layout=head_on_plane(1.0), dt_s=1.0)
+    nxt, _ = step(env, env.reset(), [[1.0, 0.0], [1.0, 0.0]])
+    x0, x1 = nxt[AGENT_GROUP, "state"][0, :, 0].tolist()
+    assert x0 > x1 and abs(x0 - x1) >= 2 * env.params.agent_radius_m  # they passed: no overlap at the end
+    assert nxt[AGENT_GROUP, "info", "collided_agent"][0].all()
+    torch.testing.assert_close(
+        nxt[AGENT_GROUP, "reward"][0, :, 0], torch.full((2,), SPEC.c_step + SPEC.c_collision), atol=0.01, rtol=0
+    )
+
+
+def test_continuous_agents_passing_in_adjacent_lanes_do_not_collide_at_any_dt():
+    # The same crossing 0.65 m apart across the sidewalk: the discs (2 × 0.3 m) pass with 5 cm to spare.
+    env = ContinuousSidewalkEnv(num_envs=1, seed=0, layout=head_on_plane(1.0, lane_offset_m=0.65), dt_s=1.0)
+    nxt, _ = step(env, env.reset(), [[1.0, 0.0], [1.0, 0.0]])
+    x0, x1 = nxt[AGENT_GROUP, "state"][0, :, 0].tolist()
+    assert x0 > x1 and not nxt[AGENT_GROUP, "info", "collided_agent"].any()
 
 
 def test_continuous_wall_collision():

@@ -267,8 +267,8 @@ def test_centralized_continuous_action_is_the_concatenation():
     td = view.reset()
     td.set("action", torch.tensor([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]))
     state = view.step(td)["next", "world", "state"]
-    speed = state[..., 2]
-    assert speed[0].tolist() == pytest.approx([0.1, 0.0]) and speed[1].tolist() == pytest.approx([0.0, 0.1])
+    speed, dv = state[..., 2], env.params.dt_s * 1.0  # one step of 1 m/s² acceleration
+    assert speed[0].tolist() == pytest.approx([dv, 0.0]) and speed[1].tolist() == pytest.approx([0.0, dv])
 
 
 def test_centralized_reward_is_the_team_reward_and_done_the_worlds():

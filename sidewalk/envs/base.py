@@ -219,19 +219,20 @@ class SidewalkEnvBase(EnvBase):
             tensordict.get((AGENT_GROUP, "action")), active
         )
         collided_now = hit_wall_now | hit_agent_now
+        status = self._status
+        status["reached_goal"] = status["reached_goal"] | reached_now
+        status["collided_wall"] = status["collided_wall"] | hit_wall_now
+        status["collided_agent"] = status["collided_agent"] | hit_agent_now
         reward = compose_reward(
             self.params.rewards,
             self._shaping_mask,
             active,
             reached_now,
             collided_now,
+            status["collided_wall"] | status["collided_agent"],
             shaping_term,
             self._shaping_weight,
         )
-        status = self._status
-        status["reached_goal"] = status["reached_goal"] | reached_now
-        status["collided_wall"] = status["collided_wall"] | hit_wall_now
-        status["collided_agent"] = status["collided_agent"] | hit_agent_now
         self._active = active = active & ~(reached_now | collided_now)
         self._steps = self._steps + 1
         return self._output(reward, None)

@@ -108,7 +108,7 @@ def sidewalk_grid(rows: int = 7, cols: int = 15) -> GridLayout:
     )
 
 
-def sidewalk_plane(length_m: float = 10.0, width_m: float = 1.5, end_margin_m: float = 0.5) -> PlaneLayout:
+def sidewalk_plane(length_m: float = 4.0, width_m: float = 3.0, end_margin_m: float = 0.5) -> PlaneLayout:
     """The paper's continuous sidewalk: two agents on the centre line facing each other, goals at the far ends."""
     check_range("length_m", length_m, 0.0, low_open=True)
     check_range("width_m", width_m, 0.0, low_open=True)

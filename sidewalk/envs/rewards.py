@@ -55,6 +55,7 @@ def compose_reward(
     active: torch.Tensor,
     reached_now: torch.Tensor,
     collided_now: torch.Tensor,
+    crashed: torch.Tensor,
     shaping_term: torch.Tensor,
     shaping_weight: float,
 ) -> torch.Tensor:
@@ -62,8 +63,10 @@ def compose_reward(
 
     ``active`` marks agents that were not done when the step began: only they pay the step cost, collect their
     own goal or collision reward and receive shaping (``shaping_weight * shaping_term``). The cooperative term
-    ``alpha * c_goal`` for every *other* agent reaching its goal this step is paid to every agent, done or not,
-    so that with alpha = 1 both agents end with +1 of goal reward when both arrive, whichever arrives first.
+    ``alpha * c_goal`` for every *other* agent reaching its goal this step is paid to every agent that has not
+    ``crashed`` (this episode, this step included), done or not: with alpha = 1 both agents end with +1 of goal
+    reward when both arrive, whichever arrives first, but an agent that crashed out of the other's way is not paid
+    for the other's arrival (SPEC §1, revised 2026-11-23: that payment taught learners to crash on purpose).
     """
     own = (
         params.c_step
@@ -75,4 +78,4 @@ def compose_reward(
         return own
     arrivals = reached_now.to(own.dtype)
     others_arrived = arrivals.sum(-1, keepdim=True) - arrivals
-    return own + params.alpha * params.c_goal * others_arrived
+    return own + params.alpha * params.c_goal * others_arrived * ~crashed

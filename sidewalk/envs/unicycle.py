@@ -24,16 +24,19 @@ class ContinuousParams:
     """Parameters of the continuous Sidewalk.
 
     The paper fixes the bounds (|acceleration| ≤ 1 m/s², |turn| ≤ π/8 per step, |v| ≤ 1 m/s). The geometry is
-    ours: at dt = 0.1 s the 9 m straight walk takes ~95 steps, a third of the 300-step timeout, and two agents
-    of radius 0.3 m pass side by side on the 1.5 m sidewalk with 0.3 m to spare.
+    ours (SPEC §1, revised 2026-11-23): at dt = 0.2 s the 3 m straight walk on the 4 m × 3 m sidewalk takes ~17
+    steps, about the grid's 14, so the paper's one set of reward constants makes walking pay in both domains, and
+    at 3 m wide a planner has room to go around an agent that holds the centre line. The first geometry (10 m ×
+    1.5 m, dt 0.1 s: a ~91-step walk, where crashing at once returns more than walking) is
+    ``length_m=10, width_m=1.5, dt_s=0.1``.
     """
 
     layout: str = "sidewalk"
-    length_m: float = 10.0
-    width_m: float = 1.5
+    length_m: float = 4.0
+    width_m: float = 3.0
     agent_radius_m: float = 0.3
     goal_radius_m: float = 0.3
-    dt_s: float = 0.1
+    dt_s: float = 0.2
     max_speed_mps: float = 1.0
     max_accel_mps2: float = 1.0
     max_turn_rad: float = math.pi / 8
@@ -67,8 +70,10 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
     every agent in ego order (self first), plus uniform ±``noise``.
 
     One step: action noise, then the bounds; θ += turn; v = clip(v + a·dt, ±max_speed); (x, y) += v·(cos θ,
-    sin θ)·dt. Collisions: a disc leaving the rectangle or touching an interior box, two discs overlapping.
-    An agent is at its goal when its centre is within ``goal_radius_m`` of it; it then stops there.
+    sin θ)·dt. Collisions: a disc leaving the rectangle or touching an interior box at the end of the step; two
+    discs coming closer than two radii at any time during the step (each moves in a straight line within a step,
+    so the closest approach of the pair is exact and no dt lets them pass through each other). An agent is at its
+    goal when its centre is within ``goal_radius_m`` of it; it then stops there.
     """
 
     Params = ContinuousParams
@@ -144,9 +149,7 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         # Like the grid, an agent that hits a wall stays where it was (removed, or an obstacle there).
         x, y = torch.where(hit_wall, self._x, x), torch.where(hit_wall, self._y, y)
         present = self._present & ~hit_wall if p.remove_crashed else self._present
-        x_t, y_t = x.t().contiguous(), y.t().contiguous()
-        gap_sq = (x_t.unsqueeze(1) - x_t.unsqueeze(0)).square() + (y_t.unsqueeze(1) - y_t.unsqueeze(0)).square()
-        touching = (gap_sq < (2 * p.agent_radius_m) ** 2) & present.t().contiguous().unsqueeze(0) & self._not_self
+        touching = self._swept_contact(x, y) & present.t().contiguous().unsqueeze(0) & self._not_self
         mover = active & ~hit_wall
         hit_agent = mover & touching.any(1).t()
         to_goal_sq = (self._goal_x - x).square() + (self._goal_y - y).square()
@@ -156,6 +159,22 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         self._speed = speed.masked_fill(reached | hit_wall | hit_agent, 0.0)
         self._present = present & ~hit_agent if p.remove_crashed else present
         return reached, hit_wall, hit_agent, to_goal_sq
+
+    def _swept_contact(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """Bool (N, N, B): agents i and j come closer than two radii at some time of the step that moves every
+        agent in a straight line from its last position to (x, y) (B, N).
+
+        In the pair's relative frame one disc moves from p0 to p0 + d; the gap is smallest at
+        t = clamp(-p0·d / |d|², 0, 1), which covers agents that would pass through each other within a step.
+        """
+        x0, y0, x1, y1 = (t.t().contiguous() for t in (self._x, self._y, x, y))
+        rel_x0, rel_y0 = x0.unsqueeze(1) - x0.unsqueeze(0), y0.unsqueeze(1) - y0.unsqueeze(0)
+        rel_dx = x1.unsqueeze(1) - x1.unsqueeze(0) - rel_x0
+        rel_dy = y1.unsqueeze(1) - y1.unsqueeze(0) - rel_y0
+        approach = (rel_x0 * rel_dx + rel_y0 * rel_dy).neg_()
+        closest = (approach / (rel_dx.square() + rel_dy.square()).clamp_min(1e-12)).clamp_(0.0, 1.0)
+        gap_sq = (rel_x0 + closest * rel_dx).square() + (rel_y0 + closest * rel_dy).square()
+        return gap_sq < (2 * self.params.agent_radius_m) ** 2
 
     def _touches_box(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         """Bool (B, N): the agent's disc overlaps an interior box."""
