@@ -53,8 +53,8 @@ class ParkedEgoGrid(GridLayout):
 
 @dataclass(frozen=True)
 class ParkedEgoPlane(PlaneLayout):
-    """The default 10 × 1.5 m sidewalk, but the ego stands against a random side wall at a random x in [2, 8] m;
-    with zero actions (and no noise) it never moves."""
+    """The first (narrow) 10 × 1.5 m sidewalk, the ego against a random side wall at a random x in [2, 8] m; with
+    zero actions (and no noise) it never moves."""
 
     def sample(self, n: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         starts, headings, goals = (t.clone() for t in super().sample(n, generator))
@@ -397,8 +397,11 @@ def test_prm_checks_its_arguments():
         PRMOpponent(env, connection_radius_m=0)
     with pytest.raises(ValueError, match="n_nodes=1 is out of range"):
         PRMOpponent(env, n_nodes=1)
-    with pytest.raises(ValueError, match=r"wall_clearance_m=0\.5 is out of range; valid: \[0\.0, 0\.45"):
-        PRMOpponent(env, wall_clearance_m=0.5)
+    # Free half width of the 4 m × 3 m sidewalk: 1.5 m - 0.3 m radius.
+    with pytest.raises(ValueError, match=r"wall_clearance_m=1\.3 is out of range; valid: \[0\.0, 1\.2"):
+        PRMOpponent(env, wall_clearance_m=1.3)
+    with pytest.raises(ValueError, match=r"predict_horizon_s=-1"):
+        PRMOpponent(env, predict_horizon_s=-1)
     with pytest.raises(TypeError, match="roadmap_seed=1.5"):
         PRMOpponent(env, roadmap_seed=1.5)
     with pytest.raises(ValueError, match="continuous"):

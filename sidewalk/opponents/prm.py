@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import torch
@@ -38,6 +38,11 @@ CONTACT_MARGIN_M = 0.05
 CONTACT_CLOSENESS = 25.0
 CONTACT_RAMP_M = 0.01  # the contact term rises from 0 to CONTACT_CLOSENESS over this last distance
 WAYPOINT_TOLERANCE_M = 0.2  # an agent this close to its best node steers on to the node after it
+# A segment's costs are raised near where the avoided agents will be, at their current velocity, when the
+# controlled agent gets there at full speed (straight-line distance to the segment's midpoint / max speed), looking
+# at most PREDICT_HORIZON_S ahead. An agent walking toward the planner's goal is then avoided where the two will
+# meet, not where it stands now (it stands on that goal at the start, which makes every path equally bad).
+PREDICT_HORIZON_S = 2.0
 BRAKE_FRACTION = 0.5  # speed caps plan to stop with this share of the deceleration; the rest is margin
 WALL_MARGIN_M = 0.02  # the speed cap stops the agent this far before the wall straight ahead
 SEGMENT_CHECK_STEP_M = 0.05  # spacing of the points that test a segment against interior boxes
@@ -88,7 +93,11 @@ class PRMOpponent(Opponent):
     Plan, every step: a straight segment costs its length times 1 + ``avoid_weight`` × its closeness to the
     other present agents (with two agents, the ego): the closeness of its point nearest an agent, falling
     linearly from 1 at the agent's centre to 0 at ``avoid_radius_m``, plus ``CONTACT_CLOSENESS`` where a disc
-    there would touch the agent, so a plan goes through contact only when nothing else reaches the goal. The
+    there would touch the agent, so a plan goes through contact only when nothing else reaches the goal. Each
+    segment is judged against where the agent will be, at its current velocity, when the controlled agent gets
+    to the segment's midpoint at full speed (at most ``predict_horizon_s`` ahead; 0: where it is now): without
+    it, an ego walking the centre line toward the planner's goal made both ways round it cost the same until
+    late, and the planner flipped between them and ran into it (8 % of 1000 seeded worlds at the defaults). The
     goal is joined to the nodes within the connection radius (at least the nearest), and so is the agent, also
     straight to the goal when that is within the radius. The waypoint is the first node of the cheapest path, or
     the node after it once the agent is within ``waypoint_tolerance_m`` of it, or the goal.
@@ -116,6 +125,7 @@ class PRMOpponent(Opponent):
         avoid_radius_m: float = AVOID_RADIUS_M,
         avoid_weight: float = AVOID_WEIGHT,
         waypoint_tolerance_m: float = WAYPOINT_TOLERANCE_M,
+        predict_horizon_s: float = PREDICT_HORIZON_S,
         roadmap_seed: int | None = None,
     ) -> None:
         super().__init__(env, controlled, ego)
@@ -128,6 +138,7 @@ class PRMOpponent(Opponent):
         check_range("avoid_radius_m", avoid_radius_m, 0.0, low_open=True)
         check_range("avoid_weight", avoid_weight, 0.0, 1000.0)
         check_range("waypoint_tolerance_m", waypoint_tolerance_m, 0.0, connection_radius_m)
+        check_range("predict_horizon_s", predict_horizon_s, 0.0, 60.0)
         if roadmap_seed is None:
             # The env's seed, read without drawing: the env's random stream is the same with or without a PRM.
             roadmap_seed = int(env.generator.initial_seed())
@@ -136,6 +147,7 @@ class PRMOpponent(Opponent):
         self.avoid_radius_m = float(avoid_radius_m)
         self.avoid_weight = float(avoid_weight)
         self.waypoint_tolerance_m = float(waypoint_tolerance_m)
+        self.predict_horizon_s = float(predict_horizon_s)
         self.roadmap_seed = roadmap_seed
         self._params = params
         self._boxes = torch.tensor(layout.boxes, dtype=torch.float32).reshape(-1, 4)
@@ -306,9 +318,16 @@ class PRMOpponent(Opponent):
         # Worlds last and contiguous, (N, B): results of broadcasts then come out contiguous too.
         agent_x, agent_y = state[..., 0].t().contiguous(), state[..., 1].t().contiguous()
         present = self._present(state, goal, done).t().contiguous()
+        avoided = self._avoided(state, agent_x, agent_y, present)
         lanes = n_controlled * n_worlds
+        node_x, node_y = self._node_x, self._node_y
+        self_x, self_y = agent_x[controlled], agent_y[controlled]  # (C, B)
+        from_self_x, from_self_y = node_x - self_x, node_y - self_y
+        from_self = torch.hypot(from_self_x, from_self_y)  # (M, C, B)
 
-        # Each edge costs its length times 1 + avoid_weight × its closeness to the agents avoided.
+        # Each edge costs its length times 1 + avoid_weight × its closeness to the agents avoided, where they will
+        # be when the controlled agent reaches the edge's midpoint.
+        edge_reach = from_self.unsqueeze(1) + 0.5 * torch.where(self._edge_length.isfinite(), self._edge_length, 0.0)
         edge_near = self._closeness(
             "edge",
             self._edge_x,
@@ -316,15 +335,12 @@ class PRMOpponent(Opponent):
             self._edge_dx,
             self._edge_dy,
             self._edge_inverse_sq,
-            agent_x,
-            agent_y,
-            present,
+            *avoided(edge_reach),
         )
         edge_cost = self._buffer("edge_cost", edge_near.shape)  # (M, K, C, B)
         torch.addcmul(self._edge_length, self._edge_weight, edge_near, out=edge_cost)
 
         # Attach the goal to the nodes within the connection radius, or at least to the nearest.
-        node_x, node_y = self._node_x, self._node_y
         goal_x = goal[:, controlled, 0].t().contiguous()  # (C, B)
         goal_y = goal[:, controlled, 1].t().contiguous()
         to_goal_x, to_goal_y = goal_x - node_x, goal_y - node_y  # (M, C, B)
@@ -334,22 +350,19 @@ class PRMOpponent(Opponent):
             attached &= self._segment_clear(node_x, node_y, goal_x, goal_y)
         inverse_sq = to_goal.square().clamp_(min=1e-12).reciprocal_()
         goal_near = self._closeness(
-            "goal", node_x, node_y, to_goal_x, to_goal_y, inverse_sq, agent_x, agent_y, present
+            "goal", node_x, node_y, to_goal_x, to_goal_y, inverse_sq, *avoided(from_self + 0.5 * to_goal)
         )
         goal_cost = torch.where(attached, to_goal * (1 + self.avoid_weight * goal_near), float("inf"))
 
         cost_to_goal = self._solve(edge_cost, goal_cost)
 
         # Attach the agent the same way; its next waypoint starts its cheapest path, through a node or straight.
-        self_x, self_y = agent_x[controlled], agent_y[controlled]  # (C, B)
-        from_self_x, from_self_y = node_x - self_x, node_y - self_y
-        from_self = torch.hypot(from_self_x, from_self_y)  # (M, C, B)
         candidate = from_self <= from_self.amin(0).clamp(min=radius)
         if len(self._boxes):
             candidate &= self._segment_clear(self_x, self_y, node_x, node_y)
         inverse_sq = from_self.square().clamp_(min=1e-12).reciprocal_()
         self_near = self._closeness(
-            "self", self_x, self_y, from_self_x, from_self_y, inverse_sq, agent_x, agent_y, present
+            "self", self_x, self_y, from_self_x, from_self_y, inverse_sq, *avoided(0.5 * from_self)
         )
         via_node = torch.where(
             candidate, from_self * (1 + self.avoid_weight * self_near) + cost_to_goal, float("inf")
@@ -374,7 +387,7 @@ class PRMOpponent(Opponent):
             direct &= self._segment_clear(self_x, self_y, goal_x, goal_y)
         inverse_sq = straight.square().clamp_(min=1e-12).reciprocal_()
         straight_near = self._closeness(
-            "straight", self_x, self_y, straight_x, straight_y, inverse_sq, agent_x, agent_y, present
+            "straight", self_x, self_y, straight_x, straight_y, inverse_sq, *avoided(0.5 * straight)
         )
         direct_cost = torch.where(direct, straight * (1 + self.avoid_weight * straight_near), float("inf"))
         to_goal_now = (direct_cost <= best_cost) | at_goal_node
@@ -429,6 +442,36 @@ class PRMOpponent(Opponent):
                 return cost.view(goal_cost.shape)
         raise RuntimeError(f"roadmap costs did not settle in {self._max_rounds} rounds")
 
+    def _avoided(
+        self, state: torch.Tensor, agent_x: torch.Tensor, agent_y: torch.Tensor, present: torch.Tensor
+    ) -> Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+        """``at(distance)``: where the agents each controlled agent avoids will be when it has gone ``distance``
+        metres (..., C, B) at full speed, at most ``predict_horizon_s`` ahead, at their current velocity, kept in
+        the world; as (x, y, presence): (..., C, B) when there is one avoided agent per world, else (..., C, N, B)
+        with presence (C, N, B)."""
+        (x_low, x_high), (y_low, y_high) = self._x_limits, self._y_limits
+        if self._only_other is not None:
+            other = self._only_other
+            x, y, shown = agent_x[other], agent_y[other], present[other].float()  # (B,)
+            speed, heading = state[:, other, 2], state[:, other, 3]
+        else:
+            x, y, shown = agent_x, agent_y, (present & self._others).float()  # (N, B), (C, N, B)
+            speed, heading = state[..., 2].t(), state[..., 3].t()
+        velocity_x, velocity_y = speed * torch.cos(heading), speed * torch.sin(heading)
+        horizon_m = self.predict_horizon_s * self._params.max_speed_mps
+
+        def at(distance: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+            if self.predict_horizon_s == 0 or not bool(speed.any()):
+                return x, y, shown
+            seconds = distance.clamp(max=horizon_m) * (1.0 / self._params.max_speed_mps)
+            if self._only_other is None:
+                seconds = seconds.unsqueeze(-2)  # an axis for the avoided agents, before the worlds
+            ahead_x = torch.addcmul(x, seconds, velocity_x).clamp_(x_low, x_high)
+            ahead_y = torch.addcmul(y, seconds, velocity_y).clamp_(y_low, y_high)
+            return ahead_x, ahead_y, shown
+
+        return at
+
     def _closeness(
         self,
         name: str,
@@ -437,30 +480,29 @@ class PRMOpponent(Opponent):
         delta_x: torch.Tensor,
         delta_y: torch.Tensor,
         inverse_length_sq: torch.Tensor,
-        agent_x: torch.Tensor,
-        agent_y: torch.Tensor,
-        present: torch.Tensor,
+        avoid_x: torch.Tensor,
+        avoid_y: torch.Tensor,
+        avoid_present: torch.Tensor,
     ) -> torch.Tensor:
         """Closeness of straight segments, start + [0, 1] · delta (shapes broadcasting to (..., C, B)), to the
-        present agents each controlled agent avoids, (..., C, B), in buffers ``name`` reuses on the next call.
+        agents each controlled agent avoids, at the places ``_avoided`` gives, (..., C, B), in buffers ``name`` reuses on
+        the next call.
 
-        A segment's closeness is that of its point nearest the agent: 1 at the agent's centre falling linearly
-        to 0 at ``avoid_radius_m``, plus ``CONTACT_CLOSENESS`` where a disc there would touch the agent (closer
-        than two radii plus ``CONTACT_MARGIN_M``); the largest over the avoided agents.
+        A segment's closeness is that of its point nearest the avoided point: 1 at the point falling linearly
+        to 0 at ``avoid_radius_m``, plus ``CONTACT_CLOSENESS`` where a disc there would touch an agent at the point
+        (closer than two radii plus ``CONTACT_MARGIN_M``); the largest over the avoided points.
         """
-        if self._only_other is not None:
-            other = self._only_other
-            from_x, from_y = agent_x[other] - start_x, agent_y[other] - start_y
-            present = present[other].float()
+        one_point = self._only_other is not None
+        if one_point:
+            from_x, from_y = avoid_x - start_x, avoid_y - start_y
         else:
-            # An agents axis before the worlds: (..., C, N, B).
-            from_x, from_y = agent_x - start_x.unsqueeze(-2), agent_y - start_y.unsqueeze(-2)
+            # An axis of avoided agents before the worlds: (..., C, N, B).
+            from_x, from_y = avoid_x - start_x.unsqueeze(-2), avoid_y - start_y.unsqueeze(-2)
             delta_x, delta_y = delta_x.unsqueeze(-2), delta_y.unsqueeze(-2)
             inverse_length_sq = inverse_length_sq.unsqueeze(-2)
-            present = (present & self._others).float()
         # In place on reused buffers: a fresh multi-megabyte tensor per operation costs more in page faults
         # than the arithmetic.
-        shape = torch.broadcast_shapes(from_x.shape, delta_x.shape, present.shape)
+        shape = torch.broadcast_shapes(from_x.shape, delta_x.shape, avoid_present.shape)
         along = self._buffer(f"{name}.along", shape).copy_(from_x).mul_(delta_x)
         along.addcmul_(from_y, delta_y).mul_(inverse_length_sq).clamp_(0.0, 1.0)
         gap = torch.mul(along, delta_x, out=self._buffer(f"{name}.gap", shape))
@@ -472,8 +514,8 @@ class PRMOpponent(Opponent):
         contact = torch.sub(self._contact_distance_m, gap, out=along)
         contact.mul_(1.0 / CONTACT_RAMP_M).clamp_(0.0, 1.0)
         closeness = gap.mul_(-1.0 / self.avoid_radius_m).add_(1.0).clamp_(min=0.0)
-        closeness.add_(contact, alpha=CONTACT_CLOSENESS).mul_(present)
-        return closeness if self._only_other is not None else closeness.amax(-2)
+        closeness.add_(contact, alpha=CONTACT_CLOSENESS).mul_(avoid_present)
+        return closeness if one_point else closeness.amax(-2)
 
     def _buffer(self, name: str, shape: torch.Size, dtype: torch.dtype = torch.float32) -> torch.Tensor:
         """A reused tensor of this name and shape; its contents are whatever the last user left."""
