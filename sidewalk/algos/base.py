@@ -16,6 +16,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sidewalk._checks import check_int, check_range
 
@@ -35,6 +36,22 @@ class AlgoConfig:
         check_range("algo.gamma", self.gamma, 0.0, 1.0)
         check_range("algo.lr", self.lr, 0.0, 1.0, low_open=True)
         check_range("algo.max_grad_norm", self.max_grad_norm, 0.0, low_open=True)
+
+
+class FixedExplorationPolicy(TensorDictModuleBase):
+    """Runs ``actor`` under ``exploration_type`` whatever the caller's context: a collection policy that always
+    samples, an evaluation policy that always takes the distribution's deterministic value."""
+
+    def __init__(self, actor: TensorDictModuleBase, exploration_type: ExplorationType) -> None:
+        super().__init__()
+        self.actor = actor
+        self.exploration_type = exploration_type
+        self.in_keys = list(actor.in_keys)
+        self.out_keys = list(actor.out_keys)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        with set_exploration_type(self.exploration_type):
+            return self.actor(tensordict)
 
 
 class Algorithm(abc.ABC):

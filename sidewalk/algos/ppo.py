@@ -9,11 +9,12 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase
+from torchrl.envs.utils import ExplorationType
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from sidewalk._checks import check_int, check_range
-from sidewalk.algos.base import AlgoConfig, Algorithm
+from sidewalk.algos.base import AlgoConfig, Algorithm, FixedExplorationPolicy
 from sidewalk.algos.networks import make_actor, make_critic
 
 
@@ -62,12 +63,14 @@ class PPO(Algorithm):
         )
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr)
         self._generator = torch.Generator().manual_seed(0)
+        self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
+        self._evaluation = FixedExplorationPolicy(self.actor, ExplorationType.DETERMINISTIC)
 
     def collection_policy(self) -> TensorDictModuleBase:
-        return self.actor
+        return self._collection
 
     def evaluation_policy(self) -> TensorDictModuleBase:
-        return self.actor  # evaluation runs it under ExplorationType.DETERMINISTIC: the distribution's mode
+        return self._evaluation
 
     def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
         cfg: PPOConfig = self.config

@@ -30,13 +30,13 @@ from torch.distributions import kl_divergence
 from torch.nn.utils import parameters_to_vector, vector_to_parameters
 from torchrl.data import Bounded, Categorical, OneHot
 from torchrl.envs import EnvBase
-from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.envs.utils import ExplorationType
 from torchrl.modules import OneHotCategorical, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import LossModule
 from torchrl.objectives.value import GAE
 
 from sidewalk._checks import check_int, check_range
-from sidewalk.algos.base import AlgoConfig, Algorithm
+from sidewalk.algos.base import AlgoConfig, Algorithm, FixedExplorationPolicy
 from sidewalk.algos.networks import is_image_spec, make_encoder, mlp
 
 OLD_POLICY = "old_policy"  # where ``TRPOLoss.snapshot`` keeps the frozen distribution's parameters
@@ -287,22 +287,6 @@ class RunningNorm(nn.Module):
         x = x.to(torch.float32)
         std = self.var.clamp_min(self.min_std**2).sqrt().to(x.dtype)
         return ((x - self.mean.to(x.dtype)) / std).clamp(-self.clip, self.clip)
-
-
-class FixedExplorationPolicy(TensorDictModuleBase):
-    """Runs ``actor`` under ``exploration_type`` whatever the caller's context: a collection policy that always
-    samples, an evaluation policy that always takes the distribution's deterministic value."""
-
-    def __init__(self, actor: TensorDictModuleBase, exploration_type: ExplorationType) -> None:
-        super().__init__()
-        self.actor = actor
-        self.exploration_type = exploration_type
-        self.in_keys = list(actor.in_keys)
-        self.out_keys = list(actor.out_keys)
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        with set_exploration_type(self.exploration_type):
-            return self.actor(tensordict)
 
 
 class TRPO(Algorithm):

@@ -5,10 +5,13 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import contextmanager
+from pathlib import Path
 
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase
+
+CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 
 
 @contextmanager
@@ -78,3 +81,17 @@ def format_table(rows: Sequence[dict], columns: Iterable[str] | None = None) -> 
     lines.append("  ".join("-" * w for w in widths))
     lines += ["  ".join(v.rjust(w) for v, w in zip(r, widths)) for r in table]
     return "\n".join(lines)
+
+
+def compose_experiment(overrides: Sequence[str]):
+    """The validated ``Experiment`` that ``runners/main.py`` would run with these overrides (read from ``conf/``)."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from sidewalk.config import register_schemas, validate
+
+    register_schemas()
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=list(overrides))
+    return validate(cfg)

@@ -43,9 +43,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from sidewalk.bench.common import format_table, torch_threads
+from sidewalk.bench.common import compose_experiment, format_table, torch_threads
 
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 TARGET = 0.9
 CONFIRM = 2  # further evaluations ≥ TARGET that make a first one "sustained"
 SECONDS = 600.0  # training-time cap of one run
@@ -92,20 +91,6 @@ COLUMNS = (
 
 
 # ---- our side: the runners/main.py path -------------------------------------------------------------------------
-
-
-def compose_experiment(overrides: Sequence[str]):
-    """The validated ``Experiment`` that ``runners/main.py`` would run with these overrides (read from ``conf/``)."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-
-    from sidewalk.config import register_schemas, validate
-
-    register_schemas()
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose("config", overrides=list(overrides))
-    return validate(cfg)
 
 
 class _Clock:
