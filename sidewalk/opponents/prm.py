@@ -97,7 +97,7 @@ class PRMOpponent(Opponent):
     segment is judged against where the agent will be, at its current velocity, when the controlled agent gets
     to the segment's midpoint at full speed (at most ``predict_horizon_s`` ahead; 0: where it is now): without
     it, an ego walking the centre line toward the planner's goal made both ways round it cost the same until
-    late, and the planner flipped between them and ran into it (8 % of 1000 seeded worlds at the defaults). The
+    late, and the planner flipped between them and ran into it (12.5 % of 1000 seeded worlds at the defaults). The
     goal is joined to the nodes within the connection radius (at least the nearest), and so is the agent, also
     straight to the goal when that is within the radius. The waypoint is the first node of the cheapest path, or
     the node after it once the agent is within ``waypoint_tolerance_m`` of it, or the goal.
