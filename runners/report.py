@@ -8,7 +8,7 @@
 Writes report.md (tables, figures embedded), report.csv (every number in report.md), curves.csv (every plotted
 point) and figures/ into --out (default: report/ inside the single path given, or inside the paths' common
 folder). Unusable run folders are listed in report.md and skipped. Progress goes to stderr. Exit status: 0, or 1
-when no run could be used, 2 for bad arguments. See sidewalk/report.py.
+when no run could be used, 2 for bad arguments. See the sidewalk.report package.
 """
 
 from __future__ import annotations

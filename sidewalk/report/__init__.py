@@ -1,0 +1,131 @@
+"""Reports over run folders: learning curves, final values with confidence intervals, and the paper's figures.
+
+``write_report(paths, out)`` finds every run folder under ``paths`` (a folder holding ``config.yaml`` and
+``metrics.csv``, as ``runners/main.py`` writes it, alone or inside a sweep), groups the runs into *conditions*
+(identical configs but for the seed and bookkeeping keys such as the logger), and writes into ``out``:
+
+- ``figures/curves_<family>.png``: success and collision rate of each agent over training, the mean over seeds
+  with the standard error shaded (the paper's way); one figure per *family*, i.e. per sweep folder (the folder
+  holding Hydra's ``multirun.yaml``), or per parent folder for runs outside a sweep;
+- the paper's figures where runs that differ in the figure's variable are present (see ``PAPER_FIGURES``):
+  Fig. 5 success and Fig. 7 collisions by opponent, Fig. 6 success under noise, Fig. 8 explicit vs implicit
+  reward, and Fig. 10 representative trajectories replayed from the runs' checkpoints; a figure whose runs are
+  missing is skipped with a note;
+- ``report.md``: the tables (final values of each condition: mean ± standard error over seeds, interquartile mean
+  with its 95 % stratified-bootstrap interval, see ``sidewalk.stats``) with the figures embedded by relative path,
+  and the run folders that were skipped and why (no ``metrics.csv``, a truncated CSV, no ``summary.json``, a
+  failed job...);
+- ``report.csv``: every number in ``report.md``, one per row; ``curves.csv``: every plotted point.
+
+Learning curves read the ``eval/<agent>/<metric>`` columns of ``metrics.csv`` (the evaluations during training);
+final values read ``summary.json`` (the last evaluation). Agents are ``ego``/``other`` where a learner plays
+against a scripted opponent and ``agent0``/``agent1``/... where it plays every agent (centralized).
+
+The modules, each importing only those listed above it (``tests/test_report_imports.py`` holds them to it):
+
+- ``runs``: finding run folders and reading their config, metrics and summary, or saying why not;
+- ``conditions``: runs grouped into conditions and labelled; the paper's figures as panels of conditions;
+- ``tables``: curves, final values with mean ± SE and IQM intervals, ``report.csv``'s rows, Markdown tables;
+- ``checkpoints``: a run's config and learner rebuilt from its folder, its final evaluation replayed;
+- ``figures``: learning curves, the paper's figures and Fig. 10's trajectories, drawn with their report.md lines;
+- ``claims``: the paper's claims (SPEC §4) held against the runs, a verdict each;
+- ``document``: ``write_report``, which puts ``report.md`` together and writes the files.
+
+Every public name of the former single module ``sidewalk/report.py`` is re-exported here.
+"""
+
+from sidewalk.report.checkpoints import Replay, load_experiment, load_policy, replay, representative_run
+from sidewalk.report.conditions import (
+    BOOKKEEPING_KEYS,
+    DOMAIN_ORDER,
+    OPPONENT_ORDER,
+    PAPER_FIGURES,
+    Condition,
+    PaperFigure,
+    describe,
+    figure_panels,
+    group_conditions,
+    panel_titles,
+    varying_keys,
+)
+from sidewalk.report.document import ReportResult, write_report
+from sidewalk.report.figures import COLOURS, CURVE_METRICS, OUTCOMES, draw_curves, draw_trajectories, slug
+from sidewalk.report.runs import (
+    CHECKPOINT,
+    CONFIG,
+    ERROR,
+    METRICS,
+    RUN_MARKERS,
+    SUMMARY,
+    SWEEP_MARKER,
+    Run,
+    RunFolderError,
+    Skipped,
+    family_of,
+    find_run_folders,
+    flatten,
+    load_run,
+    read_metrics,
+)
+from sidewalk.report.tables import (
+    X_AXES,
+    Final,
+    NumberLog,
+    Settings,
+    curve,
+    final_table,
+    finals,
+    fmt,
+    summary_values,
+)
+
+__all__ = [
+    "BOOKKEEPING_KEYS",
+    "CHECKPOINT",
+    "COLOURS",
+    "CONFIG",
+    "CURVE_METRICS",
+    "DOMAIN_ORDER",
+    "ERROR",
+    "METRICS",
+    "OPPONENT_ORDER",
+    "OUTCOMES",
+    "PAPER_FIGURES",
+    "RUN_MARKERS",
+    "SUMMARY",
+    "SWEEP_MARKER",
+    "X_AXES",
+    "Condition",
+    "Final",
+    "NumberLog",
+    "PaperFigure",
+    "Replay",
+    "ReportResult",
+    "Run",
+    "RunFolderError",
+    "Settings",
+    "Skipped",
+    "curve",
+    "describe",
+    "draw_curves",
+    "draw_trajectories",
+    "family_of",
+    "figure_panels",
+    "final_table",
+    "finals",
+    "find_run_folders",
+    "flatten",
+    "fmt",
+    "group_conditions",
+    "load_experiment",
+    "load_policy",
+    "load_run",
+    "panel_titles",
+    "read_metrics",
+    "replay",
+    "representative_run",
+    "slug",
+    "summary_values",
+    "varying_keys",
+    "write_report",
+]

@@ -1,0 +1,99 @@
+"""A run's checkpoint brought back: its config as an ``Experiment``, its learner's greedy policy, and its final
+evaluation replayed to record trajectories (Fig. 10). The learners and the training loop are imported inside the
+functions, so a report that replays no checkpoint does not load them."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from omegaconf import OmegaConf
+
+from sidewalk.report.conditions import Condition
+from sidewalk.report.runs import CHECKPOINT, CONFIG, Run
+
+
+def load_experiment(run_dir: str | Path, device: str = "cpu"):
+    """The validated ``Experiment`` of a run folder's ``config.yaml``, on ``device``.
+
+    The algorithm and logger sections are merged onto their schemas first, so they come back as their typed
+    config dataclasses, exactly as ``runners/main.py`` built them.
+    """
+    from sidewalk.algos import ALGORITHMS
+    from sidewalk.config import LoggerSchema, validate
+
+    path = Path(run_dir) / CONFIG
+    if not path.exists():
+        raise FileNotFoundError(f"{path} does not exist: {run_dir} is not a run folder")
+    cfg = OmegaConf.load(path)
+    cfg.algo = OmegaConf.merge(OmegaConf.structured(ALGORITHMS[cfg.algo.name].Config), cfg.algo)
+    cfg.logger = OmegaConf.merge(OmegaConf.structured(LoggerSchema), cfg.logger)
+    return dataclasses.replace(validate(cfg), device=device)
+
+
+def load_policy(run_dir: str | Path, experiment, env):
+    """The greedy evaluation policy of the learner saved in ``run_dir/checkpoint.pt``, rebuilt for ``env`` (a view
+    built from ``experiment``)."""
+    import torch
+    from torchrl.envs import RewardSum, TransformedEnv
+
+    from sidewalk.algos import ALGORITHMS
+
+    path = Path(run_dir) / CHECKPOINT
+    if not path.exists():
+        raise FileNotFoundError(f"{path} does not exist: the run has no checkpoint to replay")
+    # mmap: the replay buffer in the checkpoint can be large and is not needed here.
+    state = torch.load(path, map_location=experiment.device, weights_only=False, mmap=True)
+    # The learner is built on the env as training built it (a RewardSum on top), so every spec matches.
+    algo = ALGORITHMS[experiment.algo.name](
+        experiment.algo, TransformedEnv(env, RewardSum()), device=experiment.device
+    )
+    algo.load_state_dict(state["algorithm"])
+    return algo.evaluation_policy()
+
+
+@dataclass
+class Replay:
+    """Episodes of a run's final policy, replayed exactly as its final evaluation ran them."""
+
+    run: Run
+    record: Any  # sidewalk.evaluate.EpisodeRecord with trajectories of the first k worlds
+    layout: Any  # GridLayout | PlaneLayout
+    domain: str
+    matches_summary: bool
+
+
+def replay(run: Run, episodes: int) -> Replay:
+    """Replay the final evaluation of ``run`` (the same worlds, seed and greedy policy as ``Trial``'s) and record
+    the first ``episodes`` trajectories. ``matches_summary`` tells whether the replayed success and collision rates
+    equal ``summary.json``'s, i.e. the checkpoint is the policy that was evaluated."""
+    import torch
+
+    from sidewalk.evaluate import run_episodes, summarize
+    from sidewalk.experiment import EVAL_SEED_OFFSET, make_view
+
+    experiment = load_experiment(run.path)
+    seed = experiment.seed + EVAL_SEED_OFFSET
+    env = make_view(experiment, experiment.eval_episodes, seed)
+    policy = load_policy(run.path, experiment, env)
+    with torch.no_grad():
+        record = run_episodes(
+            env, policy, seed=seed, record_trajectories=min(episodes, experiment.eval_episodes)
+        )
+    replayed = summarize(record)
+    keys = [k for k in replayed if k.endswith(("success_rate", "collision_rate")) and k in run.summary]
+    matches = all(math.isclose(replayed[k], float(run.summary[k]), abs_tol=1e-6) for k in keys)
+    return Replay(run, record, env.core.layout, experiment.domain, matches)
+
+
+def representative_run(condition: Condition) -> Run | None:
+    """The run with a checkpoint whose final success (the learner's, or the team's) is the median of the seeds'."""
+    candidates = [run for run in condition.runs if (run.path / CHECKPOINT).exists()]
+    if not candidates:
+        return None
+    key = "ego/success_rate" if condition.agents()[0][0] == "ego" else "team/success_rate"
+    ranked = sorted(candidates, key=lambda run: (float(run.summary.get(key, math.nan)), run.seed))
+    return ranked[(len(ranked) - 1) // 2]

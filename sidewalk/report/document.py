@@ -1,0 +1,219 @@
+"""``report.md`` assembled from its sections, and the report's files written: ``report.md``, ``report.csv`` (every
+number in it) and ``curves.csv`` (every plotted point); the figures come from ``sidewalk.report.figures``."""
+
+from __future__ import annotations
+
+import datetime
+import logging
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from sidewalk.report.claims import claims_section
+from sidewalk.report.conditions import (
+    BOOKKEEPING_KEYS,
+    PAPER_FIGURES,
+    Condition,
+    describe,
+    group_conditions,
+    peer_keys,
+)
+from sidewalk.report.figures import family_sections, paper_figure_section, trajectory_section
+from sidewalk.report.runs import (
+    CONFIG,
+    METRICS,
+    Run,
+    RunFolderError,
+    Skipped,
+    find_run_folders,
+    load_run,
+    shown_path,
+)
+from sidewalk.report.tables import NumberLog, Settings
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class ReportResult:
+    """What ``write_report`` wrote and what it left out."""
+
+    out: Path
+    report_md: Path
+    figures: list[Path]
+    skipped: list[Skipped]
+    notes: list[str]
+    conditions: list[Condition]
+
+
+def write_report(
+    paths: Sequence[str | Path],
+    out: str | Path | None = None,
+    settings: Settings | None = None,
+    preamble: str | Path | None = None,
+) -> ReportResult:
+    """Read every run folder under ``paths`` and write the report (see the ``sidewalk.report`` docstring) into ``out``
+    (default: ``report/`` inside the single path given, or inside the paths' common folder); PNG files
+    already in ``out/figures`` are replaced. ``preamble``: a Markdown file placed under the title (how the runs
+    were made, say), read before any work starts.
+
+    Unusable run folders are listed in ``report.md`` with the reason and left out; a paper figure without its runs
+    is skipped with a note. Raises ``FileNotFoundError`` for a missing path and ``ValueError`` when no run
+    folder is found at all.
+    """
+    settings = settings or Settings()
+    preamble_text = ""
+    if preamble is not None:
+        if not Path(preamble).is_file():
+            raise FileNotFoundError(f"preamble {preamble} is not a file; give a Markdown file")
+        preamble_text = Path(preamble).read_text().strip()
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise ValueError("give at least one run folder or sweep folder")
+    folders = find_run_folders(paths)
+    if not folders:
+        raise ValueError(
+            f"no run folder (a folder with {CONFIG} and {METRICS}) under {', '.join(map(str, paths))}"
+        )
+    if out is None:
+        base = paths[0] if len(paths) == 1 else Path(os.path.commonpath([p.resolve() for p in paths]))
+        out = base / "report"
+    out = Path(out)
+    figures_dir = out / "figures"
+    figures_dir.mkdir(parents=True, exist_ok=True)
+    for stale in figures_dir.glob("*.png"):  # figures of an earlier report that this one may not redraw
+        stale.unlink()
+    log.info("reading %d run folder(s)", len(folders))
+
+    runs: list[Run] = []
+    skipped: list[Skipped] = []
+    for folder in folders:
+        try:
+            runs.append(load_run(folder))
+        except RunFolderError as error:
+            skipped.append(Skipped(folder, str(error)))
+            log.warning("skipped %s: %s", folder, error)
+    conditions = group_conditions(runs)
+    log.info("%d usable run(s) in %d condition(s); %d skipped", len(runs), len(conditions), len(skipped))
+
+    numbers = NumberLog()
+    curves_rows: list[dict[str, Any]] = []
+    figures: list[Path] = []
+    notes: list[str] = []
+    md: list[str] = [
+        "# Sidewalk report",
+        "",
+        f"Generated {datetime.datetime.now().isoformat(timespec='seconds')} from "
+        + ", ".join(f"`{p}`" for p in paths)
+        + f": {len(folders)} run folder(s), {len(runs)} used in {len(conditions)} condition(s), "
+        f"{len(skipped)} skipped.",
+        "",
+    ]
+    if preamble_text:
+        md += [preamble_text, ""]
+
+    md += _runs_section(conditions, numbers, out)
+    md += _skipped_section(skipped)
+    md += claims_section(conditions, numbers)
+    md += ["## Paper figures", ""]
+    for spec in PAPER_FIGURES:
+        md += paper_figure_section(
+            spec, conditions, settings, figures_dir, figures, numbers, curves_rows, notes
+        )
+    md += trajectory_section(conditions, settings, figures_dir, figures, notes)
+    md += family_sections(conditions, settings, figures_dir, figures, numbers, curves_rows)
+    md += _statistics_section(settings)
+
+    report_md = out / "report.md"
+    report_md.write_text("\n".join(md) + "\n")
+    numbers.frame().to_csv(out / "report.csv", index=False)
+    pd.DataFrame(
+        curves_rows,
+        columns=[
+            "figure",
+            "condition_id",
+            "condition",
+            "agent",
+            "metric",
+            "x_axis",
+            "x",
+            "mean",
+            "se",
+            "seeds",
+        ],
+    ).to_csv(out / "curves.csv", index=False)
+    log.info("wrote %s (%d figure(s))", report_md, len(figures))
+    return ReportResult(out, report_md, figures, skipped, notes, conditions)
+
+
+def _runs_section(conditions: Sequence[Condition], numbers: NumberLog, out: Path) -> list[str]:
+    md = [
+        "## Conditions",
+        "",
+        f"Runs are grouped by their config without the seed and bookkeeping keys ({', '.join(BOOKKEEPING_KEYS)}).",
+        "",
+        "| id | condition | family | seeds | iterations | frames |",
+        "| --- | --- | --- | --- | ---: | ---: |",
+    ]
+    for condition in conditions:
+        iterations = int(condition.runs[0].metrics["iteration"].iloc[-1])
+        frames = int(condition.runs[0].metrics["frames"].iloc[-1])
+        md.append(
+            f"| {condition.ident} | {condition.label} | {', '.join(condition.families)} | "
+            f"{', '.join(map(str, condition.seeds))} | {iterations} | {frames} |"
+        )
+        numbers.add("conditions", condition, "", "", "seeds", len(condition.runs), len(condition.runs))
+        numbers.add("conditions", condition, "", "", "iterations", iterations, len(condition.runs))
+        numbers.add("conditions", condition, "", "", "frames", frames, len(condition.runs))
+    md.append("")
+    for condition in conditions:
+        if "+" in condition.label and " more" in condition.label:
+            md.append(
+                f"- {condition.ident} differs from the other {condition.domain} {condition.algo.upper()} "
+                f"{condition.opponent} conditions in: {describe(condition, peer_keys(condition, conditions), None)}"
+            )
+        for seed, kept, left_out in condition.duplicates:
+            md.append(
+                f"- {condition.ident}: seed {seed} was run twice (the same config, e.g. by two presets); "
+                f"used `{shown_path(kept, out)}`, left out `{shown_path(left_out, out)}`"
+            )
+    return md + [""]
+
+
+def _skipped_section(skipped: Sequence[Skipped]) -> list[str]:
+    if not skipped:
+        return ["No run folder was skipped.", ""]
+    md = ["## Skipped run folders", "", "| run folder | reason |", "| --- | --- |"]
+    md += [
+        f"| `{item.path}` | {item.reason} |" for item in skipped
+    ]  # absolute: the folder must be found to fix it
+    return md + [""]
+
+
+def _statistics_section(settings: Settings) -> list[str]:
+    level = f"{settings.confidence:.0%}"
+    return [
+        "## How the numbers are computed",
+        "",
+        (
+            "- Curves: the evaluation metrics logged during training (`eval/<agent>/<metric>` in `metrics.csv`), "
+            "mean over seeds, shaded ± one standard error (SE = sample standard deviation / √n, as in the paper)."
+        ),
+        (
+            "- Final values: `summary.json` of each seed (the last evaluation). IQM is the interquartile mean (the mean "
+            "of the middle 50 % of the seeds' values; with fewer than 4 seeds nothing is trimmed and it is the mean)."
+        ),
+        (
+            f"- {level} CI: percentile interval of the IQM under the stratified bootstrap (rliable's method), "
+            f"{settings.n_resamples} resamples, seed {settings.seed}, computed with `scipy.stats.bootstrap`."
+        ),
+        (
+            "- With 1 seed there is no SE and no CI (shown as – / 'no CI'); with 2 seeds the CI is marked coarse "
+            "(a bootstrap of two values can take only three values). The paper used 3 seeds."
+        ),
+        "",
+    ]
