@@ -4,10 +4,17 @@
     python runners/bench.py env --num-envs 4096 --threads 1
     python runners/bench.py planning views
     python runners/bench.py training           # minutes: time to 0.9 ego success, ours vs Stable-Baselines3 DQN
+    python runners/bench.py learners --opponent prm    # hours: our TRPO/PPO vs sb3-contrib TRPO / SB3 PPO
 
 Sections: ``env`` (env-steps/s of both domains beside VMAS give_way), ``planning`` (µs per plan per world of the
 scripted planners beside scipy), ``views`` (env-steps/s of the learner views with their opponents), ``training``
-(wall clock to 0.9 ego success against Dijkstra and frames/s, our DQN beside SB3's; not run by default).
+(wall clock to 0.9 ego success against Dijkstra and frames/s, our DQN beside SB3's; not run by default),
+``learners`` (final ego success of our TRPO and PPO beside sb3-contrib's TRPO and SB3's PPO on the continuous
+sidewalk at equal seeds and frames; not run by default). Flags after the sections that are not the ones below go
+to the sections that take flags of their own (``learners``: ``--opponent``, ``--frames``, ``--seeds``,
+``--setups``, ``--learners``, ``--noise``, ``--eval-episodes``; see ``python -m sidewalk.bench.learners -h``).
+A section module has ``run(**kwargs) -> list[dict]``; it may add ``parse_options(argv) -> kwargs`` (its own flags,
+checked before any section runs) and ``format_rows(rows) -> str`` (its own printout).
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ SECTIONS = {
     "planning": "sidewalk.bench.planning",
     "views": "sidewalk.bench.views",
     "training": "sidewalk.bench.training",
+    "learners": "sidewalk.bench.learners",
 }
 DEFAULT_SECTIONS = ("env", "planning", "views")
 
@@ -36,24 +44,31 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--num-envs", type=int, nargs="+", help="override each section's num_envs list")
     parser.add_argument("--threads", type=int, nargs="+", help="override each section's thread counts")
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
     unknown = [s for s in args.sections if s not in SECTIONS]
     if unknown:
         parser.error(f"unknown section(s) {unknown}; valid: {', '.join(SECTIONS)}")
+    modules = {section: importlib.import_module(SECTIONS[section]) for section in args.sections}
+    # Sections with flags of their own parse (and check) them all before any section runs.
+    takes_flags = [section for section, module in modules.items() if hasattr(module, "parse_options")]
+    if extra and not takes_flags:
+        parser.error(f"unrecognized arguments: {' '.join(extra)} (the sections given take no flags of their own)")
+    options = {section: modules[section].parse_options(extra) for section in takes_flags}
 
     print(f"# torch {torch.__version__}, {platform.processor() or platform.machine()}, {torch.get_num_threads()} threads available")
     from sidewalk.bench.common import format_table
 
     for section in args.sections:
-        module = importlib.import_module(SECTIONS[section])
-        kwargs = {}
+        module = modules[section]
+        kwargs = dict(options.get(section, {}))
         if args.num_envs:
             kwargs["num_envs"] = args.num_envs
         if args.threads:
             kwargs["threads"] = args.threads
         start = time.perf_counter()
         rows = module.run(**kwargs)
-        print(f"\n## {section} ({time.perf_counter() - start:.0f} s)\n{format_table(rows)}", flush=True)
+        text = module.format_rows(rows) if hasattr(module, "format_rows") else format_table(rows)
+        print(f"\n## {section} ({time.perf_counter() - start:.0f} s)\n{text}", flush=True)
     return 0
 
 

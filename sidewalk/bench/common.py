@@ -1,4 +1,5 @@
-"""Timing helpers shared by the benchmark sections."""
+"""Helpers shared by the benchmark sections: timing, tables, experiments composed from ``conf/``, and the
+Stable-Baselines3 adapter of the gymnasium face."""
 
 from __future__ import annotations
 
@@ -6,7 +7,9 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase
@@ -95,3 +98,69 @@ def compose_experiment(overrides: Sequence[str]):
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=list(overrides))
     return validate(cfg)
+
+
+def sb3_vec_env(env_id: str, num_envs: int, seed: int, **kwargs: Any):
+    """``gymnasium.make_vec(env_id, num_envs=num_envs, **kwargs)`` (one batched core) as a Stable-Baselines3 ``VecEnv``.
+
+    SB3 resets a finished world inside the same step and hands its last observation in
+    ``info["terminal_observation"]``; the gymnasium face resets it on the next step instead, so the adapter resets
+    the finished worlds at once through the face's ``reset(options={"reset_mask": ...})``. A ``Box`` action space
+    (continuous world, physical units) is rescaled to [-1, 1] by gymnasium's ``RescaleAction``, the range SB3's
+    policies assume; ``reset`` seeds the core with ``seed`` the first time.
+    """
+    import gymnasium
+    from gymnasium.wrappers.vector import RescaleAction
+    from stable_baselines3.common.vec_env import VecEnv
+
+    import sidewalk.interop.gymnasium  # noqa: F401  (registers the ids)
+
+    class SidewalkSB3VecEnv(VecEnv):
+        def __init__(self) -> None:
+            self.envs = gymnasium.make_vec(env_id, num_envs=num_envs, **kwargs)
+            box = self.envs.single_action_space
+            if isinstance(box, gymnasium.spaces.Box):
+                one = np.ones(box.shape, dtype=box.dtype)
+                self.envs = RescaleAction(self.envs, -one, one)
+            self.render_mode = None
+            self._seed = seed
+            super().__init__(num_envs, self.envs.single_observation_space, self.envs.single_action_space)
+
+        def reset(self):
+            observation, _ = self.envs.reset(seed=self._seed)
+            self._seed = None
+            return observation
+
+        def step_async(self, actions: np.ndarray) -> None:
+            self._actions = actions
+
+        def step_wait(self):
+            observation, reward, terminated, truncated, info = self.envs.step(self._actions)
+            done = terminated | truncated
+            infos: list[dict] = [{} for _ in range(self.num_envs)]
+            if done.any():
+                for i in np.flatnonzero(done):
+                    infos[i] = {
+                        "terminal_observation": observation[i],
+                        "TimeLimit.truncated": bool(truncated[i] and not terminated[i]),
+                        "is_success": bool(info["is_success"][i]),
+                    }
+                observation, _ = self.envs.reset(options={"reset_mask": done})
+            return observation, reward.astype(np.float32), done, infos
+
+        def close(self) -> None:
+            self.envs.close()
+
+        def get_attr(self, attr_name, indices=None):
+            return [getattr(self, attr_name)] * len(self._get_indices(indices))
+
+        def set_attr(self, attr_name, value, indices=None):
+            setattr(self, attr_name, value)
+
+        def env_method(self, method_name, *args, indices=None, **kwargs):
+            raise NotImplementedError("one batched core: no per-world methods")
+
+        def env_is_wrapped(self, wrapper_class, indices=None):
+            return [False] * len(self._get_indices(indices))
+
+    return SidewalkSB3VecEnv()

@@ -39,11 +39,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from torch import nn
 
 from sidewalk.bench.common import compose_experiment, format_table, torch_threads
+from sidewalk.bench.common import sb3_vec_env as common_sb3_vec_env
 
 TARGET = 0.9
 CONFIRM = 2  # further evaluations ≥ TARGET that make a first one "sustained"
@@ -240,62 +240,9 @@ def paper_conv_extractor_class():
 
 
 def sb3_vec_env(num_envs: int, seed: int, **kwargs: Any):
-    """``gymnasium.make_vec("sidewalk/Discrete-v0", ...)`` (one batched core) as an SB3 ``VecEnv``.
-
-    SB3 resets a finished world inside the same step and hands its last observation in
-    ``info["terminal_observation"]``; the gymnasium face resets it on the next step instead, so the adapter resets
-    the finished worlds at once through the face's ``reset(options={"reset_mask": ...})``.
-    """
-    import gymnasium
-    from stable_baselines3.common.vec_env import VecEnv
-
-    import sidewalk.interop.gymnasium  # noqa: F401  (registers the ids)
-
-    class SidewalkSB3VecEnv(VecEnv):
-        def __init__(self) -> None:
-            self.envs = gymnasium.make_vec("sidewalk/Discrete-v0", num_envs=num_envs, opponent="dijkstra", **kwargs)
-            self.render_mode = None
-            self._seed = seed
-            super().__init__(num_envs, self.envs.single_observation_space, self.envs.single_action_space)
-
-        def reset(self):
-            observation, _ = self.envs.reset(seed=self._seed)
-            self._seed = None
-            return observation
-
-        def step_async(self, actions: np.ndarray) -> None:
-            self._actions = actions
-
-        def step_wait(self):
-            observation, reward, terminated, truncated, info = self.envs.step(self._actions)
-            done = terminated | truncated
-            infos: list[dict] = [{} for _ in range(self.num_envs)]
-            if done.any():
-                for i in np.flatnonzero(done):
-                    infos[i] = {
-                        "terminal_observation": observation[i],
-                        "TimeLimit.truncated": bool(truncated[i] and not terminated[i]),
-                        "is_success": bool(info["is_success"][i]),
-                    }
-                observation, _ = self.envs.reset(options={"reset_mask": done})
-            return observation, reward.astype(np.float32), done, infos
-
-        def close(self) -> None:
-            self.envs.close()
-
-        def get_attr(self, attr_name, indices=None):
-            return [getattr(self, attr_name)] * len(self._get_indices(indices))
-
-        def set_attr(self, attr_name, value, indices=None):
-            setattr(self, attr_name, value)
-
-        def env_method(self, method_name, *args, indices=None, **kwargs):
-            raise NotImplementedError("one batched core: no per-world methods")
-
-        def env_is_wrapped(self, wrapper_class, indices=None):
-            return [False] * len(self._get_indices(indices))
-
-    return SidewalkSB3VecEnv()
+    """``gymnasium.make_vec("sidewalk/Discrete-v0", opponent="dijkstra", ...)`` (one batched core) as an SB3
+    ``VecEnv`` that resets finished worlds within the step (``sidewalk.bench.common.sb3_vec_env``)."""
+    return common_sb3_vec_env("sidewalk/Discrete-v0", num_envs, seed, opponent="dijkstra", **kwargs)
 
 
 def sb3_settings(num_envs: int | None, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
