@@ -78,7 +78,8 @@ class LoggerSchema:
 @dataclass
 class ExperimentSchema:
     """The root config. ``iterations`` counts collector batches (the paper's unit); ``eval_every`` and
-    ``checkpoint_every`` are in iterations; ``num_envs`` worlds are simulated in one batched env."""
+    ``checkpoint_every`` are in iterations; ``num_envs`` worlds are simulated in one batched env (conf: the
+    learner's ``algo.default_num_envs`` unless given)."""
 
     env: Any = MISSING
     opponent: Any = MISSING

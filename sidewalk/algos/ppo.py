@@ -61,7 +61,7 @@ class PPO(Algorithm):
             self.actor, self.critic, clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coef,
             critic_coeff=cfg.critic_coef, normalize_advantage=False,
         )
-        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr)
+        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr, foreach=True)  # see TRPO's value optimizer
         self._generator = torch.Generator().manual_seed(0)
         self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
         self._evaluation = FixedExplorationPolicy(self.actor, ExplorationType.DETERMINISTIC)

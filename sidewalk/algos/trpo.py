@@ -52,7 +52,11 @@ class TRPOConfig(AlgoConfig):
     """
 
     name: str = "trpo"
-    frames_per_batch: int = 1024  # baselines timesteps_per_batch
+    # Ours (baselines: 1024 frames from one env). With 1024 frames an iteration, 2 of 5 seeds of the centralized
+    # learner settled on one agent crashing out of the other's way (team success 0.00 at 500 iterations); with 2048,
+    # 5 of 5 reached 1.00. 128 worlds × 16 steps collect them for the cost of ~16 env steps.
+    frames_per_batch: int = 2048
+    default_num_envs: int = 128
     gamma: float = 0.99  # baselines gamma
     lr: float = 1e-3  # baselines vf_stepsize
     max_grad_norm: float = math.inf  # value-function gradient clip; baselines and sb3-contrib do not clip
@@ -313,7 +317,9 @@ class TRPO(Algorithm):
         self.advantage = GAE(
             gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=self.value, average_gae=False
         )
-        self.value_optimizer = torch.optim.Adam(self.value.parameters(), lr=cfg.lr)
+        # foreach: one fused update over all parameter tensors; the default per-tensor loop on the CPU made the 80
+        # small Adam steps of a value fit cost 2.5× as much (1.9 vs 0.75 ms a step, 2×32 MLP).
+        self.value_optimizer = torch.optim.Adam(self.value.parameters(), lr=cfg.lr, foreach=True)
         self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
         self._evaluation = FixedExplorationPolicy(self.actor, ExplorationType.DETERMINISTIC)
 
@@ -400,7 +406,8 @@ class TRPO(Algorithm):
                 )
                 self.value_optimizer.zero_grad()
                 value_loss.backward()
-                torch.nn.utils.clip_grad_norm_(self.value.parameters(), cfg.max_grad_norm)
+                if math.isfinite(cfg.max_grad_norm):  # the default, inf, clips nothing: skip the norm's cost
+                    torch.nn.utils.clip_grad_norm_(self.value.parameters(), cfg.max_grad_norm)
                 self.value_optimizer.step()
                 epoch_losses.append(value_loss.item())
         return {"value_loss": sum(epoch_losses) / len(epoch_losses), "explained_variance": explained_variance}
