@@ -167,6 +167,15 @@ def run(overrides: Sequence[str] = (), threads: Sequence[int] = (1,), **_ignored
     return rows
 
 
+def format_rows(rows: list[dict]) -> str:
+    """``run``'s rows as one table per ``table``."""
+    parts = []
+    for table in dict.fromkeys(row["table"] for row in rows):
+        part = [{k: v for k, v in row.items() if k != "table"} for row in rows if row["table"] == table]
+        parts.append(f"{table}:\n{format_table(part)}")
+    return "\n\n".join(parts)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--override", nargs="*", default=[], help="Hydra overrides, e.g. env.length_m=10")
