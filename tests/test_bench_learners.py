@@ -68,11 +68,10 @@ def test_matched_setup_reads_our_config():
         if algo == "trpo":
             assert settings["target_kl"] == cfg.max_kl and settings["n_critic_updates"] == cfg.vf_iters
             assert settings["policy_kwargs"]["net_arch"] == {"pi": cfg.policy_hidden, "vf": cfg.value_hidden}
-            assert normalize == cfg.normalize_observations
         else:
             assert settings["n_epochs"] == cfg.epochs and settings["batch_size"] == cfg.minibatch_size
             assert settings["policy_kwargs"]["net_arch"] == {"pi": cfg.hidden, "vf": cfg.hidden}
-            assert normalize is False  # our PPO does not normalise observations
+        assert normalize is cfg.normalize_observations is True  # both of ours normalise vector observations
         defaults, default_normalize = learners.default_settings(experiment)
         assert defaults == {"n_steps": settings["n_steps"]} and default_normalize
 

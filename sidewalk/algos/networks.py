@@ -1,10 +1,13 @@
-"""Network pieces shared by the learners: observation encoders and the paper's architectures."""
+"""Network pieces shared by the learners: observation encoders, the paper's architectures, and the policy and value
+networks of the on-policy learners (TRPO, PPO)."""
 
 from __future__ import annotations
 
 import torch
+from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn
-from torchrl.modules import MLP, ConvNet
+from torchrl.data import Bounded, Categorical, OneHot
+from torchrl.modules import MLP, ConvNet, OneHotCategorical, ProbabilisticActor, TanhNormal, ValueOperator
 
 # The paper's DQN feature stack (§6.1): 32 filters 4×4 stride 2, 64 filters 4×4 stride 2, 64 filters 2×2 stride 1.
 PAPER_CONV = {"num_cells": [32, 64, 64], "kernel_sizes": [4, 4, 2], "strides": [2, 2, 1]}
@@ -75,39 +78,73 @@ class DuelingHead(nn.Module):
         return self.value(features) + advantage - advantage.mean(-1, keepdim=True)
 
 
-def make_actor(observation_spec, action_spec, hidden: list[int], activation: type[nn.Module] = nn.Tanh):
-    """From unbatched specs, a stochastic policy over the spec's actions: Categorical logits for discrete actions, a TanhNormal within
-    the spec's bounds for continuous ones. Writes ``action`` and ``action_log_prob``."""
-    from tensordict.nn import NormalParamExtractor, TensorDictModule
-    from torch.distributions import Categorical
-    from torchrl.modules import ProbabilisticActor, TanhNormal
+class RunningNorm(nn.Module):
+    """Standardises vectors by running mean and std, clipped to ±``clip`` (baselines' ``RunningMeanStd`` as its
+    policies use it: std floored at ``min_std``, output clipped to ±5). The identity until the first ``update``."""
 
-    encoder = make_encoder(observation_spec.shape, is_image_spec(observation_spec))
-    discrete = not torch.is_floating_point(action_spec.zero())
-    if discrete:
-        head = mlp(encoder.out_features, int(action_spec.space.n), hidden, activation)
-        module = TensorDictModule(nn.Sequential(encoder, head), in_keys=["observation"], out_keys=["logits"])
-        return ProbabilisticActor(
-            module, spec=action_spec, in_keys=["logits"], distribution_class=Categorical, return_log_prob=True
-        )
-    n_out = action_spec.shape[-1]
-    head = mlp(encoder.out_features, 2 * n_out, hidden, activation)
-    module = TensorDictModule(
-        nn.Sequential(encoder, head, NormalParamExtractor()), in_keys=["observation"], out_keys=["loc", "scale"]
-    )
-    return ProbabilisticActor(
-        module,
-        spec=action_spec,
-        in_keys=["loc", "scale"],
-        distribution_class=TanhNormal,
-        distribution_kwargs={"low": action_spec.space.low, "high": action_spec.space.high},
-        return_log_prob=True,
-    )
+    def __init__(self, size: int, clip: float = 5.0, min_std: float = 0.1) -> None:
+        super().__init__()
+        self.clip = clip
+        self.min_std = min_std
+        # float64 statistics: the count grows into the millions and float32 sums would drift.
+        self.register_buffer("count", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("mean", torch.zeros(size, dtype=torch.float64))
+        self.register_buffer("var", torch.ones(size, dtype=torch.float64))
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        """Merge the samples ``x`` (..., size) into the statistics (Chan et al.'s parallel mean/variance)."""
+        x = x.reshape(-1, self.mean.shape[0]).to(torch.float64)
+        n = x.shape[0]
+        batch_mean, batch_var = x.mean(0), x.var(0, unbiased=False)
+        total = self.count + n
+        delta = batch_mean - self.mean
+        self.var.copy_((self.var * self.count + batch_var * n + delta**2 * self.count * n / total) / total)
+        self.mean.add_(delta * n / total)
+        self.count.copy_(total)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = x.to(torch.float32)
+        std = self.var.clamp_min(self.min_std**2).sqrt().to(x.dtype)
+        return ((x - self.mean.to(x.dtype)) / std).clamp(-self.clip, self.clip)
 
 
-def make_critic(observation_spec, hidden: list[int], activation: type[nn.Module] = nn.Tanh):
-    """A state-value network V(observation) writing ``state_value``."""
-    from torchrl.modules import ValueOperator
+def _trunk(encoder: nn.Module, norm: RunningNorm | None, out_features: int, hidden: list[int]) -> nn.Sequential:
+    """observation → encoder → running norm (vectors) → tanh MLP → ``out_features``."""
+    head = mlp(encoder.out_features, out_features, list(hidden), nn.Tanh)
+    return nn.Sequential(*([encoder] if norm is None else [encoder, norm]), head)
 
-    encoder = make_encoder(observation_spec.shape, is_image_spec(observation_spec))
-    return ValueOperator(nn.Sequential(encoder, mlp(encoder.out_features, 1, hidden, activation)), in_keys=["observation"])
+
+def on_policy_networks(
+    observation_spec, action_spec, policy_hidden: list[int], value_hidden: list[int], normalize_observations: bool
+) -> tuple[ProbabilisticActor, ValueOperator, RunningNorm | None]:
+    """The policy and value networks of OpenAI baselines' TRPO/PPO (and CleanRL's continuous PPO), from unbatched
+    specs: ``observation`` (a vector, standardised by one ``RunningNorm`` both networks share, or a uint8 image
+    through the paper's conv encoder) → tanh MLPs. The policy samples ``action`` from a ``TanhNormal`` within a
+    ``Bounded`` spec, with a learned state-independent log-std (0 at the start), or from a ``Categorical`` /
+    ``OneHotCategorical`` over discrete actions; its output layer starts at 1 % of its default scale, so the first
+    policy is centred / near uniform. The value network writes ``state_value``. Returns (actor, value, norm)."""
+    image = is_image_spec(observation_spec)
+    norm = RunningNorm(observation_spec.shape[-1]) if normalize_observations and not image else None
+    if isinstance(action_spec, Bounded):
+        n_out, dist_keys = action_spec.shape[-1], ["loc", "scale"]
+        dist = {
+            "distribution_class": TanhNormal,
+            "distribution_kwargs": {"low": action_spec.space.low, "high": action_spec.space.high},
+        }
+    elif isinstance(action_spec, (Categorical, OneHot)):
+        n_out, dist_keys = action_spec.space.n, ["logits"]
+        dist = {"distribution_class": OneHotCategorical if isinstance(action_spec, OneHot) else torch.distributions.Categorical}
+    else:
+        raise TypeError(f"needs a Categorical, OneHot or Bounded action spec; got {type(action_spec).__name__}")
+    policy_net = _trunk(make_encoder(observation_spec.shape, image), norm, n_out, policy_hidden)
+    out_layer = policy_net[-1][-1]
+    with torch.no_grad():
+        out_layer.weight.mul_(0.01)
+        out_layer.bias.zero_()
+    if isinstance(action_spec, Bounded):
+        policy_net.append(AddStateIndependentNormalScale(n_out, scale_mapping="exp"))
+    module = TensorDictModule(policy_net, in_keys=["observation"], out_keys=dist_keys)
+    actor = ProbabilisticActor(module, in_keys=dist_keys, out_keys=["action"], spec=action_spec, **dist)
+    value_net = _trunk(make_encoder(observation_spec.shape, image), norm, 1, value_hidden)
+    return actor, ValueOperator(value_net, in_keys=["observation"]), norm

@@ -1,4 +1,9 @@
-"""PPO (clipped surrogate) from TorchRL parts: ``ClipPPOLoss`` with a GAE advantage, for both domains."""
+"""PPO (clipped surrogate) from TorchRL parts: ``ClipPPOLoss`` with a GAE advantage, for both domains.
+
+The networks are TRPO's (``sidewalk.algos.networks.on_policy_networks``), as in CleanRL's continuous PPO: a
+state-independent log-std starting at 0, an output layer at 1 % of its default scale, observations standardised by
+running statistics.
+"""
 
 from __future__ import annotations
 
@@ -15,12 +20,13 @@ from torchrl.objectives.value import GAE
 
 from sidewalk._checks import check_int, check_range
 from sidewalk.algos.base import AlgoConfig, Algorithm, FixedExplorationPolicy
-from sidewalk.algos.networks import make_actor, make_critic
+from sidewalk.algos.networks import on_policy_networks
 
 
 @dataclass
 class PPOConfig(AlgoConfig):
-    """PPO settings; defaults after Schulman et al. 2017 / CleanRL's continuous-control preset."""
+    """PPO settings; defaults after Schulman et al. 2017 / CleanRL's continuous-control preset (``ppo_continuous_action``,
+    which also standardises observations)."""
 
     name: str = "ppo"
     frames_per_batch: int = 2048
@@ -34,6 +40,8 @@ class PPOConfig(AlgoConfig):
     entropy_coef: float = 0.0
     critic_coef: float = 0.5
     hidden: list[int] = field(default_factory=lambda: [64, 64])
+    normalize_observations: bool = True  # CleanRL: gym's NormalizeObservation; vectors only, not images
+    default_num_envs: int = 128  # 16 steps of 128 worlds an iteration, as TRPO
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -45,6 +53,8 @@ class PPOConfig(AlgoConfig):
         check_range("algo.critic_coef", self.critic_coef, 0.0)
         for width in self.hidden:
             check_int("algo.hidden[]", width, 1)
+        if not isinstance(self.normalize_observations, bool):
+            raise TypeError(f"algo.normalize_observations={self.normalize_observations!r} must be a bool")
 
 
 class PPO(Algorithm):
@@ -54,8 +64,10 @@ class PPO(Algorithm):
 
     def _build(self, env: EnvBase) -> None:
         cfg: PPOConfig = self.config
-        self.actor = make_actor(self.observation_spec, self.action_spec, list(cfg.hidden)).to(self.device)
-        self.critic = make_critic(self.observation_spec, list(cfg.hidden)).to(self.device)
+        actor, critic, self.obs_norm = on_policy_networks(
+            self.observation_spec, self.action_spec, cfg.hidden, cfg.hidden, cfg.normalize_observations
+        )
+        self.actor, self.critic = actor.to(self.device), critic.to(self.device)
         self.advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=self.critic, average_gae=True)
         self.loss = ClipPPOLoss(
             self.actor, self.critic, clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coef,
@@ -79,6 +91,13 @@ class PPO(Algorithm):
         with torch.no_grad():
             self.advantage(batch)  # GAE needs the (worlds, time) layout: time is the last batch dimension
         flat = batch.reshape(-1)
+        if self.obs_norm is not None:
+            self.obs_norm.update(flat.get("observation"))
+        with torch.no_grad():
+            # The ratio's reference: the policy as it is now, after the statistics moved (TRPO's snapshot does the
+            # same), so the first minibatch starts at ratio 1.
+            dist = self.actor.get_dist(flat.copy())
+            flat.set(self.loss.tensor_keys.sample_log_prob, dist.log_prob(flat.get("action")))
         logs: dict[str, list[torch.Tensor]] = {"loss_objective": [], "loss_critic": [], "loss_entropy": []}
         for _ in range(cfg.epochs):
             order = torch.randperm(flat.numel(), generator=self._generator).to(self.device)

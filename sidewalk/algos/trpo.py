@@ -24,20 +24,19 @@ from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule, TensorDictModuleBase
+from tensordict.nn import TensorDictModuleBase
 from torch import nn
 from torch.distributions import kl_divergence
 from torch.nn.utils import parameters_to_vector, vector_to_parameters
-from torchrl.data import Bounded, Categorical, OneHot
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType
-from torchrl.modules import OneHotCategorical, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.modules import ProbabilisticActor
 from torchrl.objectives import LossModule
 from torchrl.objectives.value import GAE
 
 from sidewalk._checks import check_int, check_range
 from sidewalk.algos.base import AlgoConfig, Algorithm, FixedExplorationPolicy
-from sidewalk.algos.networks import is_image_spec, make_encoder, mlp
+from sidewalk.algos.networks import on_policy_networks
 
 OLD_POLICY = "old_policy"  # where ``TRPOLoss.snapshot`` keeps the frozen distribution's parameters
 
@@ -265,37 +264,6 @@ def trpo_step(
     return logs
 
 
-class RunningNorm(nn.Module):
-    """Standardises vectors by running mean and std, clipped to ±``clip`` (baselines' ``RunningMeanStd`` as its
-    policies use it: std floored at ``min_std``, output clipped to ±5). The identity until the first ``update``."""
-
-    def __init__(self, size: int, clip: float = 5.0, min_std: float = 0.1) -> None:
-        super().__init__()
-        self.clip = clip
-        self.min_std = min_std
-        # float64 statistics: the count grows into the millions and float32 sums would drift.
-        self.register_buffer("count", torch.zeros((), dtype=torch.float64))
-        self.register_buffer("mean", torch.zeros(size, dtype=torch.float64))
-        self.register_buffer("var", torch.ones(size, dtype=torch.float64))
-
-    @torch.no_grad()
-    def update(self, x: torch.Tensor) -> None:
-        """Merge the samples ``x`` (..., size) into the statistics (Chan et al.'s parallel mean/variance)."""
-        x = x.reshape(-1, self.mean.shape[0]).to(torch.float64)
-        n = x.shape[0]
-        batch_mean, batch_var = x.mean(0), x.var(0, unbiased=False)
-        total = self.count + n
-        delta = batch_mean - self.mean
-        self.var.copy_((self.var * self.count + batch_var * n + delta**2 * self.count * n / total) / total)
-        self.mean.add_(delta * n / total)
-        self.count.copy_(total)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = x.to(torch.float32)
-        std = self.var.clamp_min(self.min_std**2).sqrt().to(x.dtype)
-        return ((x - self.mean.to(x.dtype)) / std).clamp(-self.clip, self.clip)
-
-
 class TRPO(Algorithm):
     """TRPO for a single-agent env with ``observation`` (a vector or a uint8 image) and ``action`` (``Categorical``
     or ``OneHot`` for discrete actions, ``Bounded`` for continuous ones, sampled from a ``TanhNormal`` in the
@@ -309,13 +277,10 @@ class TRPO(Algorithm):
 
     def _build(self, env: EnvBase) -> None:
         cfg = self.config
-        image = is_image_spec(self.observation_spec)
-        self.obs_norm = (
-            RunningNorm(self.observation_spec.shape[-1]) if cfg.normalize_observations and not image else None
+        self.actor, self.value, self.obs_norm = on_policy_networks(
+            self.observation_spec, self.action_spec, cfg.policy_hidden, cfg.value_hidden, cfg.normalize_observations
         )
-        self.actor = self._make_actor(self.action_spec, image).to(self.device)
-        value_net, _ = self._trunk(image, 1, cfg.value_hidden)
-        self.value = ValueOperator(value_net, in_keys=["observation"]).to(self.device)
+        self.actor, self.value = self.actor.to(self.device), self.value.to(self.device)
         self.loss = TRPOLoss(self.actor, entropy_coef=cfg.entropy_coef, cg_damping=cfg.cg_damping)
         self.advantage = GAE(
             gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=self.value, average_gae=False
@@ -325,40 +290,6 @@ class TRPO(Algorithm):
         self.value_optimizer = torch.optim.Adam(self.value.parameters(), lr=cfg.lr, foreach=True)
         self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
         self._evaluation = FixedExplorationPolicy(self.actor, ExplorationType.DETERMINISTIC)
-
-    def _trunk(self, image: bool, out_features: int, hidden: list[int]) -> tuple[nn.Sequential, nn.Linear]:
-        """observation → encoder → running norm (vectors) → tanh MLP → ``out_features``; also its output layer."""
-        encoder = make_encoder(self.observation_spec.shape, image)
-        head = mlp(encoder.out_features, out_features, hidden, nn.Tanh)
-        layers = [encoder] if self.obs_norm is None else [encoder, self.obs_norm]
-        return nn.Sequential(*layers, head), head[-1]
-
-    def _make_actor(self, action_spec, image: bool) -> ProbabilisticActor:
-        hidden = self.config.policy_hidden
-        if isinstance(action_spec, Bounded):
-            net, out_layer = self._trunk(image, action_spec.shape[-1], hidden)
-            # Baselines' Gaussian policy: a learned log-std per action dimension, exp(0) = 1 at the start.
-            net.append(AddStateIndependentNormalScale(action_spec.shape[-1], scale_mapping="exp"))
-            dist_keys = ["loc", "scale"]
-            dist = {
-                "distribution_class": TanhNormal,
-                "distribution_kwargs": {"low": action_spec.space.low, "high": action_spec.space.high},
-            }
-        elif isinstance(action_spec, (Categorical, OneHot)):
-            net, out_layer = self._trunk(image, action_spec.space.n, hidden)
-            dist_keys = ["logits"]
-            one_hot = isinstance(action_spec, OneHot)
-            dist = {"distribution_class": OneHotCategorical if one_hot else torch.distributions.Categorical}
-        else:
-            raise TypeError(
-                f"TRPO needs a Categorical, OneHot or Bounded action spec; got {type(action_spec).__name__}"
-            )
-        # Baselines initialises the policy's output layer with std 0.01: the first policy is near uniform/centred.
-        with torch.no_grad():
-            out_layer.weight.mul_(0.01)
-            out_layer.bias.zero_()
-        module = TensorDictModule(net, in_keys=["observation"], out_keys=dist_keys)
-        return ProbabilisticActor(module, in_keys=dist_keys, out_keys=["action"], spec=action_spec, **dist)
 
     def collection_policy(self) -> TensorDictModuleBase:
         return self._collection

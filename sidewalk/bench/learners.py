@@ -160,15 +160,15 @@ def matched_settings(experiment) -> tuple[dict[str, Any], bool]:
             "policy_kwargs": {"net_arch": {"pi": list(algo.policy_hidden), "vf": list(algo.value_hidden)},
                               "activation_fn": nn.Tanh},
         }
-        return settings, bool(algo.normalize_observations)
-    settings = {
-        "n_steps": n_steps, "gamma": algo.gamma, "gae_lambda": algo.gae_lambda, "learning_rate": algo.lr,
-        "batch_size": algo.minibatch_size, "n_epochs": algo.epochs, "clip_range": algo.clip_epsilon,
-        "ent_coef": algo.entropy_coef, "vf_coef": algo.critic_coef, "max_grad_norm": algo.max_grad_norm,
-        "normalize_advantage": True,  # ours standardises advantages over the batch (GAE average_gae=True)
-        "policy_kwargs": {"net_arch": {"pi": list(algo.hidden), "vf": list(algo.hidden)}, "activation_fn": nn.Tanh},
-    }
-    return settings, bool(getattr(algo, "normalize_observations", False))
+    else:
+        settings = {
+            "n_steps": n_steps, "gamma": algo.gamma, "gae_lambda": algo.gae_lambda, "learning_rate": algo.lr,
+            "batch_size": algo.minibatch_size, "n_epochs": algo.epochs, "clip_range": algo.clip_epsilon,
+            "ent_coef": algo.entropy_coef, "vf_coef": algo.critic_coef, "max_grad_norm": algo.max_grad_norm,
+            "normalize_advantage": True,  # ours standardises advantages over the batch (GAE average_gae=True)
+            "policy_kwargs": {"net_arch": {"pi": list(algo.hidden), "vf": list(algo.hidden)}, "activation_fn": nn.Tanh},
+        }
+    return settings, bool(algo.normalize_observations)
 
 
 SETTINGS = {"defaults": default_settings, "matched": matched_settings}
