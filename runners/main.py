@@ -4,6 +4,11 @@
     python runners/main.py env=continuous opponent=prm algo=trpo noise=0.5
     python runners/main.py -m seed=0,1,2 noise=0,0.1,0.2 hydra/launcher=joblib
     python runners/main.py hydra.run.dir=results/runs/mine resume=true   # continue a killed run
+    python runners/main.py hydra.run.dir=results/runs/mine resume=true iterations=1000 keep_checkpoint=all
+                                                   # extend a run that finished with keep_checkpoint=all
+
+Exit status: 0 done; 2 a bad config or run folder (nothing computed); 1 an error, or a learner that diverged;
+128 + n when signal n (SIGTERM, SIGUSR1) stopped the run after writing its checkpoint.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
+from sidewalk import run_folder
 from sidewalk.config import register_schemas, validate
 from sidewalk.hydra_callbacks import ERROR_FILE
 
@@ -31,20 +37,31 @@ def main(cfg: DictConfig) -> float | None:
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
     in_sweep = hydra_cfg.mode == RunMode.MULTIRUN
+    config = OmegaConf.to_container(cfg, resolve=True)
     try:
         experiment = validate(cfg)  # every check before any compute
-    except (ValueError, TypeError) as error:
+        run_folder.check(run_dir, config, experiment.resume)
+    except (ValueError, TypeError, run_folder.RunFolderError) as error:
         if in_sweep:
-            (run_dir / ERROR_FILE).write_text(f"invalid config: {error}\n")
+            run_dir.mkdir(parents=True, exist_ok=True)
+            (run_dir / ERROR_FILE).write_text(f"invalid config or run folder: {error}\n")
             return None
         print(f"error: {error}", file=sys.stderr)
         sys.exit(2)
 
-    from sidewalk.experiment import Trial, atomic_write
+    from sidewalk.experiment import LearnerDiverged, RunInterrupted, Trial
 
-    atomic_write(run_dir / "config.yaml", lambda tmp: OmegaConf.save(cfg, tmp, resolve=True))
     try:
-        summary = Trial(experiment, run_dir, OmegaConf.to_container(cfg, resolve=True)).run()
+        summary = Trial(experiment, run_dir, config).run()
+    except RunInterrupted as stopped:
+        print(f"\n{stopped}", file=sys.stderr)
+        sys.exit(128 + stopped.signum)
+    except (LearnerDiverged, run_folder.RunFolderError) as error:
+        if in_sweep:
+            (run_dir / ERROR_FILE).write_text(f"{type(error).__name__}: {error}\n")
+            return None
+        print(f"\nerror: {error}", file=sys.stderr)
+        sys.exit(1)
     except Exception:
         if not in_sweep:
             raise

@@ -42,12 +42,20 @@ def replace_checked(params: Any, overrides: Mapping[str, Any], owner: str) -> An
     Unknown names are an error that lists the valid ones (and the closest match), so a typo never falls back
     to a silent default.
     """
-    fields = [f.name for f in dataclasses.fields(params)]
-    unknown = [key for key in overrides if key not in fields]
+    check_keys(owner, overrides, [f.name for f in dataclasses.fields(params)], kind="parameter", error=TypeError)
+    return dataclasses.replace(params, **overrides)
+
+
+def check_keys(
+    owner: str, keys: Iterable[str], valid: Iterable[str], *, kind: str = "key", error: type[Exception] = ValueError
+) -> None:
+    """Raise ``error`` naming every key of ``keys`` not in ``valid``, with the closest valid name ("did you mean")
+    and the full list, so a typo never falls back to a silent default."""
+    valid = list(valid)
+    unknown = [key for key in keys if key not in valid]
     if unknown:
         hints = []
         for key in unknown:
-            close = difflib.get_close_matches(key, fields, n=1)
+            close = difflib.get_close_matches(key, valid, n=1)
             hints.append(f"{key!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
-        raise TypeError(f"unknown parameter {', '.join(hints)} for {owner}; valid: {', '.join(fields)}")
-    return dataclasses.replace(params, **overrides)
+        raise error(f"unknown {kind} {', '.join(hints)} for {owner}; valid: {', '.join(valid)}")

@@ -16,7 +16,7 @@ from typing import Any, Optional
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
-from sidewalk._checks import check_choice, check_int, check_range
+from sidewalk._checks import check_choice, check_int, check_keys, check_range
 from sidewalk.algos.base import AlgoConfig
 from sidewalk.envs.grid import DiscreteParams
 from sidewalk.envs.layouts import grid_layout, plane_layout
@@ -27,6 +27,7 @@ DOMAINS = ("discrete", "continuous")
 OPPONENT_DOMAINS = {"random": DOMAINS, "dijkstra": ("discrete",), "prm": ("continuous",), "centralized": DOMAINS}
 ALGO_DOMAINS = {"dqn": ("discrete",), "trpo": DOMAINS, "ppo": DOMAINS}
 LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
+KEEP_CHECKPOINT = ("final", "all")
 # Set by the top level (`noise`) and the reward group, so they are not env-group fields.
 ENV_FIELDS_SET_ELSEWHERE = ("noise", "rewards")
 
@@ -95,6 +96,7 @@ class ExperimentSchema:
     eval_episodes: int = 256
     checkpoint_every: int = 50
     resume: bool = False
+    keep_checkpoint: str = "final"
     torch_threads: int = 1
 
 
@@ -135,7 +137,29 @@ class Experiment:
     eval_episodes: int
     checkpoint_every: int
     resume: bool
+    keep_checkpoint: str
     torch_threads: int
+
+
+def _field_names(schema: type) -> list[str]:
+    return [f.name for f in dataclasses.fields(schema)]
+
+
+def check_known_keys(cfg: DictConfig, algo_cls: type) -> None:
+    """Raise naming any key no schema has (``+nosie=0.5``, ``+env.widht_m=2``), with the closest valid one.
+
+    Hydra's ``+`` adds a key whatever the schema says, and an unread key would let a typo train on the default.
+    """
+    top = [key for key in cfg if key != "hydra"]
+    check_keys("the experiment (top level)", top, _field_names(ExperimentSchema))
+    env_schema = DiscreteEnvSchema if cfg.env.domain == "discrete" else ContinuousEnvSchema
+    groups = {
+        "env": env_schema, "reward": RewardSchema, "opponent": OpponentSchema, "logger": LoggerSchema,
+        "algo": algo_cls,
+    }
+    for group, schema in groups.items():
+        check_keys(f"{group}.* ({group}={cfg[group].get('name', cfg[group].get('domain'))})", list(cfg[group].keys()),
+                   _field_names(schema))
 
 
 def validate(cfg: DictConfig) -> Experiment:
@@ -150,6 +174,7 @@ def validate(cfg: DictConfig) -> Experiment:
     check_int("eval_episodes", cfg.eval_episodes, 1)
     check_int("checkpoint_every", cfg.checkpoint_every, 0)
     check_int("torch_threads", cfg.torch_threads, 1)
+    check_choice("keep_checkpoint", cfg.keep_checkpoint, KEEP_CHECKPOINT)
     if not str(cfg.device).startswith(("cpu", "cuda", "mps")):
         raise ValueError(f"device={cfg.device!r} is not valid; valid: 'cpu', 'cuda', 'cuda:N', 'mps'")
 
@@ -166,6 +191,7 @@ def validate(cfg: DictConfig) -> Experiment:
         valid = [name for name, domains in ALGO_DOMAINS.items() if domain in domains]
         raise ValueError(f"algo={algo_name} does not fit env={domain}; valid algos there: {', '.join(valid)}")
     check_choice("logger", cfg.logger.name, LOGGERS)
+    check_known_keys(cfg, ALGORITHMS[algo_name].Config)
 
     # The noise means a random-action probability in the grid and a ±ε uniform noise in the continuous world.
     if domain == "discrete":
@@ -217,5 +243,6 @@ def validate(cfg: DictConfig) -> Experiment:
         eval_episodes=cfg.eval_episodes,
         checkpoint_every=cfg.checkpoint_every,
         resume=bool(cfg.resume),
+        keep_checkpoint=str(cfg.keep_checkpoint),
         torch_threads=cfg.torch_threads,
     )

@@ -2,29 +2,33 @@
 
 ``Trial(experiment, run_dir).run()`` reads top to bottom in ``run``. A run folder holds:
 
-- ``config.yaml``: the resolved config (written by ``runners/main.py``);
+- ``config.yaml`` and ``history.jsonl``: the resolved config and the run's events (``sidewalk.run_folder``);
 - ``metrics.csv``: one row per iteration (frames, wall clock, train metrics, eval metrics at eval iterations);
 - ``summary.json``: the final evaluation as flat SPEC §6 keys plus seed, wall clock, versions, git revision;
-- ``checkpoint.pt``: everything needed to continue exactly where the run was (``resume=true``);
+- ``checkpoint.pt`` (and the generation before it, ``checkpoint.prev.pt``): everything needed to continue exactly
+  where the run was (``resume=true``), kept after the run only with ``keep_checkpoint=all``;
+- ``policy.pt``: the learner's networks, all that a report or a render replays;
 - the logger's own files (``logs/``).
 
 Files are replaced atomically (written beside, then renamed), so a crash or a kill never leaves one half-written,
 and a resumed run rewinds ``metrics.csv`` to its checkpoint before going on, so it ends with the same rows as a
-run that was never interrupted.
+run that was never interrupted. SIGTERM or SIGUSR1 (a scheduler's pre-emption notice) ends the run at the end of
+its iteration with a checkpoint (``RunInterrupted``); a learner whose loss or parameters turn non-finite stops the
+run before anything is written from it (``LearnerDiverged``), so the last checkpoint is the last good state.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
 import platform
 import random
-import subprocess
+import signal
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 import pandas as pd
@@ -40,12 +44,21 @@ from sidewalk.algos.base import Algorithm
 from sidewalk.config import Experiment
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
+from sidewalk.run_folder import (
+    METRICS,
+    SUMMARY,
+    append_history,
+    atomic_write,
+    drop_training_state,
+    git_revision,
+    load_checkpoint,
+    record_start,
+    save_checkpoint,
+    save_policy,
+)
 from sidewalk.views import CentralizedView, EgoView
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds draw from a stream of their own, the same at every evaluation
-CHECKPOINT = "checkpoint.pt"
-METRICS = "metrics.csv"
-SUMMARY = "summary.json"
 WALL_CLOCK_COLUMNS = ("time_s", "frames_per_s")
 
 
@@ -71,13 +84,6 @@ def collector_frames_per_batch(experiment: Experiment) -> int:
     return math.ceil(experiment.algo.frames_per_batch / experiment.num_envs) * experiment.num_envs
 
 
-def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
-    """Write ``path`` through a temporary file beside it and an atomic rename: readers see old or new, never half."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    write(tmp)
-    os.replace(tmp, path)
-
-
 def package_versions() -> dict[str, str]:
     import tensordict
     import torchrl
@@ -91,17 +97,6 @@ def package_versions() -> dict[str, str]:
         "tensordict": tensordict.__version__,
         "sidewalk": sidewalk.__version__,
     }
-
-
-def git_revision() -> str:
-    """The source tree's commit (with ``-dirty`` when it has changes), or ``unknown`` outside git."""
-    root = Path(__file__).resolve().parents[1]
-    try:
-        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True)
-        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=root, capture_output=True, text=True, check=True)
-        return rev.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 # ---- exact state of a running trial -----------------------------------------------------------------------------
@@ -197,6 +192,61 @@ def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:
     return metrics
 
 
+# ---- stopping early -------------------------------------------------------------------------------------------
+
+
+class RunInterrupted(Exception):
+    """SIGTERM/SIGUSR1 arrived; the run wrote a checkpoint at the end of ``iteration`` and stopped."""
+
+    def __init__(self, signum: int, iteration: int, run_dir: Path) -> None:
+        self.signum, self.iteration = signum, iteration
+        super().__init__(
+            f"{signal.Signals(signum).name} received: checkpointed at iteration {iteration} in {run_dir}; "
+            "continue with the same command and resume=true"
+        )
+
+
+class LearnerDiverged(RuntimeError):
+    """The learner's loss or parameters became non-finite; nothing from that update was written."""
+
+
+def divergence(algo: Algorithm, logs: dict[str, float]) -> str | None:
+    """What is non-finite after an update (a loss, or some module's parameters), or None.
+
+    One sum per module: a sum is finite exactly when every parameter is (they are far from overflowing it).
+    """
+    bad = [f"{key}={value}" for key, value in logs.items() if "loss" in key and not math.isfinite(value)]
+    for name, module in algo.modules().items():
+        total = sum((p.detach().sum() for p in module.parameters()), torch.zeros(()))
+        if not math.isfinite(float(total)):
+            bad.append(f"parameters of {name!r}")
+    return ", ".join(bad) or None
+
+
+class StopSignals:
+    """Record SIGTERM/SIGUSR1 (Slurm's pre-emption and submitit's notice) instead of dying, so the loop can
+    checkpoint at the end of the iteration. Installed only in the main thread (Python's rule for handlers)."""
+
+    SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGUSR1") if hasattr(signal, name))
+
+    def __init__(self) -> None:
+        self.received: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> Self:
+        if threading.current_thread() is threading.main_thread():
+            for signum in self.SIGNALS:
+                self._previous[signum] = signal.signal(signum, self._record)
+        return self
+
+    def _record(self, signum: int, frame: Any) -> None:
+        self.received = signum
+
+    def __exit__(self, *exc: object) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+
+
 # ---- the trial --------------------------------------------------------------------------------------------------
 
 
@@ -204,6 +254,8 @@ class Trial:
     """Train one learner with one seed and write its run folder (see the module docstring)."""
 
     def __init__(self, experiment: Experiment, run_dir: str | Path, config: dict | None = None) -> None:
+        """``config``: the resolved config to write as ``config.yaml`` (and check a resume against); without it
+        the folder gets no ``config.yaml`` or ``history.jsonl`` (benchmarks' throwaway runs)."""
         self.experiment = experiment
         self.run_dir = Path(run_dir)
         self.config = config or {}
@@ -250,11 +302,8 @@ class Trial:
 
         rows: list[dict[str, float]] = []
         start_iteration, elapsed_before = 0, 0.0
-        checkpoint_path = self.run_dir / CHECKPOINT
         if exp.resume:
-            if not checkpoint_path.exists():
-                raise FileNotFoundError(f"resume=true but {checkpoint_path} does not exist; start without resume")
-            state = torch.load(checkpoint_path, weights_only=False)
+            state = load_checkpoint(self.run_dir, map_location=exp.device)
             algo.load_state_dict(state["algorithm"])
             if replay_buffer is not None:
                 replay_buffer.load_state_dict(state["replay_buffer"])
@@ -263,6 +312,9 @@ class Trial:
             collector._frames, collector._iter = state["collector_frames"], state["collector_iter"]
             restore_rng(state["rng"])
             rows, start_iteration, elapsed_before = state["rows"], state["iteration"], state["elapsed_s"]
+        if self.config:  # from runners/main.py: the folder records the config and this start
+            record_start(self.run_dir, self.config, exp.resume)
+        if exp.resume:
             self._write_metrics(rows)
 
         def checkpoint(iteration: int, elapsed: float) -> None:
@@ -278,48 +330,67 @@ class Trial:
                 "rng": capture_rng(),
                 "rows": rows,
             }
-            atomic_write(checkpoint_path, lambda tmp: torch.save(state, tmp))
+            save_checkpoint(self.run_dir, state)
 
         started = time.perf_counter() - elapsed_before
         bar = tqdm(total=exp.iterations, initial=start_iteration, disable=not progress, desc="train", unit="it")
         iteration = start_iteration
         last_write = time.perf_counter()
         stop = False
-        for batch in collector:
-            iteration += 1
-            logs = {f"train/{key}": value for key, value in algo.update(batch, replay_buffer).items()}
-            collector.update_policy_weights_()
-            row: dict[str, float] = {"iteration": iteration, "frames": iteration * frames_per_batch}
-            row.update(train_metrics(batch, ego))
-            row.update(logs)
-            if exp.eval_every and (iteration % exp.eval_every == 0 or iteration == exp.iterations):
-                rng = capture_rng()  # evaluation must not shift the training stream
-                eval_started = time.perf_counter()
-                metrics = evaluate(eval_env, algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
-                eval_ended = time.perf_counter()
-                restore_rng(rng)
-                row.update({f"eval/{key}": value for key, value in metrics.items()})
-                stop = on_evaluation is not None and bool(on_evaluation(metrics, eval_started, eval_ended))
-            elapsed = time.perf_counter() - started
-            row["time_s"] = elapsed
-            row["frames_per_s"] = row["frames"] / max(elapsed, 1e-9)
-            rows.append(row)
-            if logger is not None:
-                for key, value in row.items():
-                    if key != "iteration" and isinstance(value, float) and math.isfinite(value):
-                        logger.log_scalar(key, value, step=int(row["frames"]))
-            self._progress(bar, row)
-            checkpoint_now = exp.checkpoint_every and iteration % exp.checkpoint_every == 0
-            if checkpoint_now:
-                checkpoint(iteration, elapsed)
-            done = stop or iteration >= exp.iterations
-            if checkpoint_now or done or time.perf_counter() - last_write > 10.0:
-                self._write_metrics(rows)
-                last_write = time.perf_counter()
-            if done:
-                break
+        with StopSignals() as signals:
+            for batch in collector:
+                logs = {f"train/{key}": value for key, value in algo.update(batch, replay_buffer).items()}
+                diverged = divergence(algo, logs)
+                if diverged is not None:
+                    self._write_metrics(rows)
+                    self._history("diverged", iteration=iteration + 1, non_finite=diverged)
+                    raise LearnerDiverged(
+                        f"the learner diverged at iteration {iteration + 1}: non-finite {diverged}. The run stopped; "
+                        f"{self.run_dir} keeps its last checkpoint and metrics up to iteration {iteration} "
+                        "(try a lower algo.lr or algo.max_grad_norm, or another seed)"
+                    )
+                iteration += 1
+                collector.update_policy_weights_()
+                row: dict[str, float] = {"iteration": iteration, "frames": iteration * frames_per_batch}
+                row.update(train_metrics(batch, ego))
+                row.update(logs)
+                if exp.eval_every and (iteration % exp.eval_every == 0 or iteration == exp.iterations):
+                    rng = capture_rng()  # evaluation must not shift the training stream
+                    eval_started = time.perf_counter()
+                    metrics = evaluate(eval_env, algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+                    eval_ended = time.perf_counter()
+                    restore_rng(rng)
+                    row.update({f"eval/{key}": value for key, value in metrics.items()})
+                    stop = on_evaluation is not None and bool(on_evaluation(metrics, eval_started, eval_ended))
+                elapsed = time.perf_counter() - started
+                row["time_s"] = elapsed
+                row["frames_per_s"] = row["frames"] / max(elapsed, 1e-9)
+                rows.append(row)
+                if logger is not None:
+                    for key, value in row.items():
+                        if key != "iteration" and isinstance(value, float) and math.isfinite(value):
+                            logger.log_scalar(key, value, step=int(row["frames"]))
+                self._progress(bar, row)
+                done = stop or iteration >= exp.iterations
+                interrupted = signals.received is not None and not done
+                checkpoint_now = interrupted or (exp.checkpoint_every and iteration % exp.checkpoint_every == 0)
+                if checkpoint_now and not done:  # the end writes its own (keep_checkpoint=all) or none
+                    checkpoint(iteration, elapsed)
+                if checkpoint_now or done or time.perf_counter() - last_write > 10.0:
+                    self._write_metrics(rows)
+                    last_write = time.perf_counter()
+                if interrupted:
+                    bar.close()
+                    collector.shutdown()
+                    self._history("interrupted", iteration=iteration,
+                                   signal=signal.Signals(signals.received).name)
+                    raise RunInterrupted(signals.received, iteration, self.run_dir)
+                if done:
+                    break
         bar.close()
-        checkpoint(iteration, time.perf_counter() - started)
+        if exp.keep_checkpoint == "all":
+            checkpoint(iteration, time.perf_counter() - started)
+        save_policy(self.run_dir, algo.policy_state_dict())
         collector.shutdown()
 
         last_eval = {key[len("eval/"):]: value for key, value in rows[-1].items() if key.startswith("eval/")}
@@ -336,7 +407,14 @@ class Trial:
         # Strict JSON: an undefined metric (no agent arrived, so no path efficiency) is null, not NaN.
         strict = {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in summary.items()}
         atomic_write(self.run_dir / SUMMARY, lambda tmp: tmp.write_text(json.dumps(strict, indent=2, default=str)))
+        if exp.keep_checkpoint == "final":  # the replay buffer and optimiser state are gigabytes over a sweep
+            drop_training_state(self.run_dir)
+        self._history("finished", iteration=iteration)
         return summary
+
+    def _history(self, event: str, **details: Any) -> None:
+        if self.config:
+            append_history(self.run_dir, event, **details)
 
     def _write_metrics(self, rows: list[dict[str, float]]) -> None:
         frame = pd.DataFrame(rows)

@@ -93,6 +93,11 @@ def test_opponent_yaml_mirrors_the_constructor_defaults(name):
         (["env=continuous", "algo=dqn"], "algo=dqn does not fit env=continuous"),
         (["opponent.ego=3"], "opponent.ego=3"),
         (["env.length_cells=6"], "14 px per side"),
+        (["+nosie=0.5"], "unknown key 'nosie' (did you mean 'noise'?)"),
+        (["+mystery=1"], "unknown key 'mystery'"),
+        (["+env.widht_cells=3"], "unknown key 'widht_cells' (did you mean 'width_cells'?)"),
+        (["+algo.lrr=0.1"], "unknown key 'lrr' (did you mean 'lr'?) for algo.* (algo=dqn)"),
+        (["keep_checkpoint=some"], "keep_checkpoint='some'"),
     ],
 )
 def test_bad_overrides_fail_naming_the_value(overrides, named):
@@ -103,7 +108,9 @@ def test_bad_overrides_fail_naming_the_value(overrides, named):
 
 
 @pytest.mark.parametrize(
-    "override, named", [("opponent=prm", "does not play env=discrete"), ("env=maze", "continuous"), ("noise=2", "noise=2")]
+    "override, named",
+    [("opponent=prm", "does not play env=discrete"), ("env=maze", "continuous"), ("noise=2", "noise=2"),
+     ("+nosie=0.5", "did you mean 'noise'")],
 )
 def test_cli_rejects_bad_input_before_compute(tmp_path, override, named):
     result = subprocess.run(
@@ -113,3 +120,4 @@ def test_cli_rejects_bad_input_before_compute(tmp_path, override, named):
     assert result.returncode != 0
     assert named in result.stderr + result.stdout
     assert not (tmp_path / "run" / "checkpoint.pt").exists()
+    assert not (tmp_path / "run" / "config.yaml").exists()

@@ -369,6 +369,25 @@ def test_continuous_action_noise_is_applied_before_the_bounds():
     assert speed.std() > 0.5 * dt
 
 
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_non_finite_action_is_an_error_naming_its_worlds(bad):
+    env = ContinuousSidewalkEnv(num_envs=8, seed=0)
+    td = env.reset()
+    action = torch.zeros(8, 2, 2)
+    action[5, 1, 0] = bad
+    td.set((AGENT_GROUP, "action"), action)
+    with pytest.raises(ValueError, match=r"non-finite action in 1 of 8 worlds \(world 5 agent 1"):
+        env.step(td)
+    if not math.isnan(bad):
+        return  # the bounds clip an infinite action; it is still refused, as the sign of a diverged policy
+    # The switch exists for users who measured its cost; without it the world turns NaN (what the check prevents).
+    unchecked = ContinuousSidewalkEnv(num_envs=8, seed=0, check_actions=False)
+    td = unchecked.reset()
+    td.set((AGENT_GROUP, "action"), action)
+    state = unchecked.step(td)["next", AGENT_GROUP, "state"]
+    assert not torch.isfinite(state[5, 1]).all() and torch.isfinite(state[:5]).all()
+
+
 # ---- observations ------------------------------------------------------------------------------------------------
 
 

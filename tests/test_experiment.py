@@ -37,10 +37,17 @@ def metrics(run_dir: Path) -> pd.DataFrame:
     return pd.read_csv(run_dir / "metrics.csv").drop(columns=WALL_CLOCK)
 
 
+def history(run_dir: Path) -> list[dict]:
+    return [json.loads(line) for line in (run_dir / "history.jsonl").read_text().splitlines()]
+
+
 def test_run_folder_contents(tmp_path):
     run = tmp_path / "run"
     main_py(*TINY, f"hydra.run.dir={run}")
-    assert {"config.yaml", "metrics.csv", "summary.json", "checkpoint.pt"} <= {p.name for p in run.iterdir()}
+    files = {p.name for p in run.iterdir()}
+    assert {"config.yaml", "history.jsonl", "metrics.csv", "summary.json", "policy.pt"} <= files
+    assert not {"checkpoint.pt", "checkpoint.prev.pt"} & files  # keep_checkpoint=final: the state is dropped
+    assert [event["event"] for event in history(run)] == ["started", "finished"]
     frame = pd.read_csv(run / "metrics.csv")
     assert list(frame["iteration"]) == list(range(1, 13))
     assert frame["eval/ego/success_rate"].notna().sum() == 3  # iterations 4, 8, 12
@@ -64,37 +71,136 @@ def test_same_seed_same_metrics_across_processes(tmp_path):
     assert not metrics(tmp_path / "a").equals(metrics(tmp_path / "c"))
 
 
+GRID_SETUP = [*TINY_DQN, "noise=0.1"]
+CONTINUOUS_SETUP = [
+    "env=continuous", "opponent=prm", "algo=trpo", "noise=0.5", "algo.frames_per_batch=32", "algo.vf_batch_size=16"
+]
+
+
 @pytest.mark.parametrize(
-    "setup",
-    [
-        [*TINY_DQN, "noise=0.1"],
-        ["env=continuous", "opponent=prm", "algo=trpo", "noise=0.5", "algo.frames_per_batch=32", "algo.vf_batch_size=16"],
-    ],
-    ids=["dqn-grid", "trpo-continuous"],
+    "setup, stop",
+    [(GRID_SETUP, signal.SIGKILL), (CONTINUOUS_SETUP, signal.SIGKILL), (GRID_SETUP, signal.SIGTERM)],
+    ids=["dqn-grid-killed", "trpo-continuous-killed", "dqn-grid-preempted"],
 )
-def test_killed_run_resumes_to_the_same_metrics(tmp_path, setup):
+def test_stopped_run_resumes_to_the_same_metrics(tmp_path, setup, stop):
+    # SIGKILL: the run resumes from its last periodic checkpoint. SIGTERM (a scheduler's pre-emption): the run
+    # writes a checkpoint at the end of the iteration it is in and exits with 128 + 15.
     overrides = [*RUN, "iterations=40", "checkpoint_every=5", "eval_every=10", *setup]
     main_py(*overrides, f"hydra.run.dir={tmp_path / 'whole'}", timeout=600)
 
-    killed = tmp_path / "killed"
+    stopped = tmp_path / "stopped"
     process = subprocess.Popen(
-        [sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={killed}"],
+        [sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={stopped}"],
         cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )
     deadline = time.time() + 300
-    while not (killed / "checkpoint.pt").exists() and process.poll() is None and time.time() < deadline:
+    while not (stopped / "checkpoint.pt").exists() and process.poll() is None and time.time() < deadline:
         time.sleep(0.02)
-    os.kill(process.pid, signal.SIGKILL)
-    process.wait()
-    assert not (killed / "summary.json").exists(), "the run finished before it could be killed"
+    os.kill(process.pid, stop)
+    returncode = process.wait()
+    assert not (stopped / "summary.json").exists(), "the run finished before it could be stopped"
+    if stop == signal.SIGTERM:
+        assert returncode == 128 + signal.SIGTERM
+        assert history(stopped)[-1]["event"] == "interrupted"
+        import torch
 
-    main_py(*overrides, f"hydra.run.dir={killed}", "resume=true", timeout=600)
-    pd.testing.assert_frame_equal(metrics(killed), metrics(tmp_path / "whole"))
+        at = torch.load(stopped / "checkpoint.pt", weights_only=False)["iteration"]
+        assert len(pd.read_csv(stopped / "metrics.csv")) == at  # the metrics end where the checkpoint does
+
+    main_py(*overrides, f"hydra.run.dir={stopped}", "resume=true", timeout=600)
+    pd.testing.assert_frame_equal(metrics(stopped), metrics(tmp_path / "whole"))
+
+
+def test_resume_refuses_another_config_naming_each_key(tmp_path):
+    run = tmp_path / "run"
+    main_py(*TINY, "keep_checkpoint=all", f"hydra.run.dir={run}")
+    config = (run / "config.yaml").read_text()
+    result = main_py(*TINY, "noise=0.2", "iterations=8", "resume=true", f"hydra.run.dir={run}", check=False)
+    assert result.returncode == 2
+    assert "noise: 0.0 -> 0.2" in result.stderr and "iterations: 12 -> 8" in result.stderr
+    assert (run / "config.yaml").read_text() == config and len(history(run)) == 2  # nothing was touched
+    # A new run into the folder is refused too: two runs never mix in one folder.
+    result = main_py(*TINY, f"hydra.run.dir={run}", check=False)
+    assert result.returncode == 2 and "already holds a run" in result.stderr
+
+
+def test_a_finished_run_extends_to_the_run_of_the_larger_budget(tmp_path):
+    main_py(*TINY, "iterations=16", f"hydra.run.dir={tmp_path / 'whole'}")
+    extended = tmp_path / "extended"
+    main_py(*TINY, "keep_checkpoint=all", f"hydra.run.dir={extended}")
+    main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={extended}")
+    pd.testing.assert_frame_equal(metrics(extended), metrics(tmp_path / "whole"))
+    assert history(extended)[2] | {"time": None, "git_revision": None} == {
+        "event": "resumed", "iterations": {"from": 12, "to": 16}, "time": None, "git_revision": None
+    }
+    assert "iterations: 16" in (extended / "config.yaml").read_text()
+
+
+def test_a_corrupt_checkpoint_falls_back_to_the_previous_one(tmp_path):
+    main_py(*TINY, "iterations=12", f"hydra.run.dir={tmp_path / 'whole'}")
+    run = tmp_path / "run"
+    main_py(*TINY, "iterations=8", "keep_checkpoint=all", f"hydra.run.dir={run}")  # checkpoints at 8, prev at 4
+    data = (run / "checkpoint.pt").read_bytes()
+    (run / "checkpoint.pt").write_bytes(data[: len(data) // 2])  # torn: the disk filled, the node died
+    result = main_py(*TINY, "iterations=12", "resume=true", f"hydra.run.dir={run}")
+    assert "checkpoint.pt is unreadable" in result.stderr
+    pd.testing.assert_frame_equal(metrics(run), metrics(tmp_path / "whole"))  # resumed from iteration 4, exactly
+
+    both = tmp_path / "both"
+    main_py(*TINY, "iterations=8", "keep_checkpoint=all", f"hydra.run.dir={both}")
+    for name in ("checkpoint.pt", "checkpoint.prev.pt"):
+        (both / name).write_bytes(b"not a checkpoint")
+    result = main_py(*TINY, "iterations=12", "resume=true", f"hydra.run.dir={both}", check=False)
+    assert result.returncode == 1 and "no readable checkpoint" in result.stderr
+    assert "checkpoint.prev.pt: unreadable" in result.stderr
+
+
+def test_a_finished_default_run_folder_is_small(tmp_path):
+    # The default DQN's replay buffer alone is ~90 MB; a finished folder keeps the policy, metrics and plots.
+    run = tmp_path / "run"
+    main_py("iterations=3", "eval_every=0", "eval_episodes=16", f"hydra.run.dir={run}")
+    size = sum(path.stat().st_size for path in run.rglob("*") if path.is_file())
+    assert size < 5_000_000, size
+    assert (run / "policy.pt").exists() and not (run / "checkpoint.pt").exists()
+
+
+def test_a_diverged_learner_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch):
+    import torch
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from sidewalk.algos.dqn import DQN
+    from sidewalk.config import register_schemas, validate
+    from sidewalk.experiment import LearnerDiverged, Trial
+
+    register_schemas()
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[*TINY, "checkpoint_every=1"])
+    update, calls = DQN.update, []
+
+    def update_that_diverges(self, batch, replay_buffer=None):
+        logs = update(self, batch, replay_buffer)
+        calls.append(1)
+        if len(calls) == 3:
+            with torch.no_grad():
+                next(self.loss.parameters()).fill_(float("nan"))
+        return logs
+
+    monkeypatch.setattr(DQN, "update", update_that_diverges)
+    with pytest.raises(LearnerDiverged, match="diverged at iteration 3: non-finite parameters of 'loss'"):
+        Trial(validate(cfg), tmp_path, OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
+    assert torch.load(tmp_path / "checkpoint.pt", weights_only=False)["iteration"] == 2
+    assert len(pd.read_csv(tmp_path / "metrics.csv")) == 2
+    assert history(tmp_path)[-1]["event"] == "diverged"
 
 
 def test_resume_without_checkpoint_is_an_error(tmp_path):
     result = main_py(*TINY, f"hydra.run.dir={tmp_path / 'new'}", "resume=true", check=False)
-    assert result.returncode != 0 and "resume=true" in result.stderr
+    assert result.returncode == 2 and "resume=true" in result.stderr
+    finished = tmp_path / "finished"
+    main_py(*TINY, f"hydra.run.dir={finished}")  # keep_checkpoint=final: the state is gone after the run
+    result = main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={finished}", check=False)
+    assert result.returncode == 2 and "keep_checkpoint=all" in result.stderr
 
 
 @pytest.mark.parametrize("launcher", ["basic", "joblib"])

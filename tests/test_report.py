@@ -217,7 +217,7 @@ def test_report_on_synthetic_runs_draws_every_figure(synthetic, tmp_path):
     for name in names:
         assert f"](figures/{name})" in report  # embedded by relative path
     assert (
-        "Fig. 10" in report and "no run with a loadable `checkpoint.pt`" in report
+        "Fig. 10" in report and "no run with a loadable policy.pt or checkpoint.pt" in report
     )  # no checkpoints: skipped
     assert result.skipped == []
     # 3 + 3 + 3 + 2 conditions; the grid Dijkstra runs of Fig. 5 (5000 iterations) and Fig. 6 (2000) stay apart.

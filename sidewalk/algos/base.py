@@ -108,6 +108,16 @@ class Algorithm(abc.ABC):
             "frames_seen": self.frames_seen,
         }
 
+    def policy_state_dict(self) -> dict[str, Any]:
+        """The networks only (no optimiser state): what ``policy.pt`` keeps for evaluation and rendering."""
+        return {"modules": {name: module.state_dict() for name, module in self.modules().items()},
+                "frames_seen": self.frames_seen}
+
+    def load_policy_state_dict(self, state: dict[str, Any]) -> None:
+        for name, module in self.modules().items():
+            module.load_state_dict(state["modules"][name])
+        self.frames_seen = state["frames_seen"]
+
     def load_state_dict(self, state: dict[str, Any]) -> None:
         for name, module in self.modules().items():
             module.load_state_dict(state["modules"][name])

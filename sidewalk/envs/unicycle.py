@@ -43,6 +43,7 @@ class ContinuousParams:
     noise: float = 0.0  # ε: uniform ±ε added to every action (before the bounds) and every observation
     max_steps: int = 300
     remove_crashed: bool = True
+    check_actions: bool = True  # a non-finite action raises, naming its worlds, rather than turning them NaN
     rewards: RewardParams = field(default_factory=RewardParams)
 
     def __post_init__(self) -> None:
@@ -56,8 +57,9 @@ class ContinuousParams:
         check_range("max_turn_rad", self.max_turn_rad, 0.0, math.pi, low_open=True)
         check_range("noise", self.noise, 0.0, 10.0)
         check_int("max_steps", self.max_steps, 1)
-        if not isinstance(self.remove_crashed, bool):
-            raise TypeError(f"remove_crashed={self.remove_crashed!r} must be a bool")
+        for name in ("remove_crashed", "check_actions"):
+            if not isinstance(getattr(self, name), bool):
+                raise TypeError(f"{name}={getattr(self, name)!r} must be a bool")
         if not isinstance(self.rewards, RewardParams):
             raise TypeError(f"rewards={self.rewards!r} must be a RewardParams or a mapping of its fields")
 
@@ -129,8 +131,27 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         noise = torch.rand(shape, generator=self._generator, device=self.device)
         return (2.0 * noise - 1.0) * self.params.noise
 
+    def _check_finite(self, action: torch.Tensor) -> None:
+        """Raise on a NaN or infinite action: the bounds would pass NaN through and the world's state would turn
+        NaN without a word (an inactive agent's too: NaN · 0 is NaN). The sum is finite exactly when every entry
+        is (bounded actions cannot overflow it): one reduction and one sync, ~4× cheaper than ``isfinite().all()``."""
+        if math.isfinite(action.sum().item()):
+            return
+        bad = ~torch.isfinite(action).all(-1)  # (B, N)
+        worlds, agents = bad.nonzero(as_tuple=True)
+        shown = ", ".join(
+            f"world {w} agent {a}: {action[w, a].tolist()}" for w, a in zip(worlds[:5].tolist(), agents[:5].tolist())
+        )
+        more = f" and {len(worlds) - 5} more" if len(worlds) > 5 else ""
+        raise ValueError(
+            f"non-finite action in {int(bad.any(-1).sum())} of {self.num_envs} worlds ({shown}{more}); "
+            "the policy that chose it has diverged or is fed NaN (env.check_actions=false skips this check)"
+        )
+
     def _advance(self, action: torch.Tensor, active: torch.Tensor):
         p = self.params
+        if p.check_actions:
+            self._check_finite(action)
         if p.noise > 0.0:
             action = action + self._uniform_noise(action.shape)
         accel = action[..., 0].clamp(-p.max_accel_mps2, p.max_accel_mps2)

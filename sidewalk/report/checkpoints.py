@@ -13,7 +13,7 @@ from typing import Any
 from omegaconf import OmegaConf
 
 from sidewalk.report.conditions import Condition
-from sidewalk.report.runs import CHECKPOINT, CONFIG, Run
+from sidewalk.report.runs import CONFIG, POLICY_FILES, Run, policy_file
 
 
 def load_experiment(run_dir: str | Path, device: str = "cpu"):
@@ -35,23 +35,23 @@ def load_experiment(run_dir: str | Path, device: str = "cpu"):
 
 
 def load_policy(run_dir: str | Path, experiment, env):
-    """The greedy evaluation policy of the learner saved in ``run_dir/checkpoint.pt``, rebuilt for ``env`` (a view
-    built from ``experiment``)."""
+    """The greedy evaluation policy of the learner saved in ``run_dir`` (``policy.pt``, else ``checkpoint.pt``),
+    rebuilt for ``env`` (a view built from ``experiment``)."""
     import torch
     from torchrl.envs import RewardSum, TransformedEnv
 
     from sidewalk.algos import ALGORITHMS
 
-    path = Path(run_dir) / CHECKPOINT
-    if not path.exists():
-        raise FileNotFoundError(f"{path} does not exist: the run has no checkpoint to replay")
-    # mmap: the replay buffer in the checkpoint can be large and is not needed here.
+    path = policy_file(run_dir)
+    if path is None:
+        raise FileNotFoundError(f"{run_dir} has no {POLICY_FILES}: the run has no learned policy to replay")
+    # mmap: a checkpoint's replay buffer can be large and is not needed here.
     state = torch.load(path, map_location=experiment.device, weights_only=False, mmap=True)
     # The learner is built on the env as training built it (a RewardSum on top), so every spec matches.
     algo = ALGORITHMS[experiment.algo.name](
         experiment.algo, TransformedEnv(env, RewardSum()), device=experiment.device
     )
-    algo.load_state_dict(state["algorithm"])
+    algo.load_policy_state_dict(state.get("algorithm", state))  # a checkpoint, or policy.pt
     return algo.evaluation_policy()
 
 
@@ -90,8 +90,8 @@ def replay(run: Run, episodes: int) -> Replay:
 
 
 def representative_run(condition: Condition) -> Run | None:
-    """The run with a checkpoint whose final success (the learner's, or the team's) is the median of the seeds'."""
-    candidates = [run for run in condition.runs if (run.path / CHECKPOINT).exists()]
+    """The run with a saved policy whose final success (the learner's, or the team's) is the median of the seeds'."""
+    candidates = [run for run in condition.runs if policy_file(run.path) is not None]
     if not candidates:
         return None
     key = "ego/success_rate" if condition.agents()[0][0] == "ego" else "team/success_rate"

@@ -25,7 +25,7 @@ from sidewalk.report.conditions import (
     panel_titles,
     varying_keys,
 )
-from sidewalk.report.runs import CHECKPOINT, SUMMARY, shown_path
+from sidewalk.report.runs import POLICY_FILES, SUMMARY, shown_path
 from sidewalk.report.tables import NumberLog, Settings, curve, final_table, finals
 
 log = logging.getLogger(__name__)
@@ -300,7 +300,7 @@ def trajectory_section(
             break
         run = representative_run(condition)
         if run is None:
-            problems.append(f"{condition.ident}: no {CHECKPOINT}")
+            problems.append(f"{condition.ident}: no {POLICY_FILES}")
             continue
         try:
             log.info("replaying %s (%s, seed %d)", condition.ident, condition.label, run.seed)
@@ -311,13 +311,13 @@ def trajectory_section(
             )
             log.warning("could not replay %s: %s", run.path, error)
     if not replays:
-        note = f"{title} skipped: no run with a loadable {CHECKPOINT}" + (
+        note = f"{title} skipped: no run with a loadable {POLICY_FILES}" + (
             f" ({'; '.join(problems)})" if problems else ""
         )
         notes.append(note)
         return (
             md
-            + [f"_Skipped: no run with a loadable `{CHECKPOINT}`._", ""]
+            + [f"_Skipped: no run with a loadable {POLICY_FILES}._", ""]
             + [f"- {p}" for p in problems]
             + [""]
         )

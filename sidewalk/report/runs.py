@@ -14,15 +14,21 @@ from typing import Any
 import pandas as pd
 from omegaconf import OmegaConf
 
-CONFIG, METRICS, SUMMARY, CHECKPOINT, ERROR = (
-    "config.yaml",
-    "metrics.csv",
-    "summary.json",
-    "checkpoint.pt",
-    "error.txt",
-)
+from sidewalk.run_folder import CHECKPOINT, CONFIG, METRICS, POLICY, SUMMARY
+
+ERROR = "error.txt"
 # A folder holding any of these is a run folder, complete or not (".hydra" alone: a job killed while starting).
-RUN_MARKERS = (CONFIG, METRICS, SUMMARY, CHECKPOINT, ERROR, ".hydra")
+RUN_MARKERS = (CONFIG, METRICS, SUMMARY, CHECKPOINT, POLICY, ERROR, ".hydra")
+POLICY_FILES = f"{POLICY} or {CHECKPOINT}"
+
+
+def policy_file(run_dir: str | Path) -> Path | None:
+    """Where a run's learned networks are: ``policy.pt`` (every run since it was added), else ``checkpoint.pt``
+    (an unfinished run, or one written before), else None."""
+    for name in (POLICY, CHECKPOINT):
+        if (Path(run_dir) / name).exists():
+            return Path(run_dir) / name
+    return None
 SWEEP_MARKER = "multirun.yaml"
 
 

@@ -1,0 +1,210 @@
+"""A run folder that describes exactly the run that made it: atomic files, two checkpoint generations, a resume
+that refuses a different config, a history of every start, and a finished folder that keeps only what is small.
+
+Files (see ``sidewalk.experiment`` for what the trial writes into them):
+
+- ``config.yaml``: the resolved config, written once when the run starts and never changed by a resume except
+  for a larger ``iterations``;
+- ``history.jsonl``: one line per event (started, resumed with what changed, interrupted, diverged, finished);
+- ``checkpoint.pt`` and ``checkpoint.prev.pt``: the newest full state and the one before it; a checkpoint that
+  cannot be read is named in a warning and the previous one is used;
+- ``policy.pt``: the learner's networks only (no optimiser, no replay buffer), all a report or a render needs;
+  with ``keep_checkpoint=final`` (the default) it is all that stays of the state once the run has finished.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+from omegaconf import OmegaConf
+
+CONFIG = "config.yaml"
+HISTORY = "history.jsonl"
+CHECKPOINT = "checkpoint.pt"
+PREVIOUS_CHECKPOINT = "checkpoint.prev.pt"
+POLICY = "policy.pt"
+METRICS = "metrics.csv"
+SUMMARY = "summary.json"
+# Keys a resume may change: the flag itself and what is kept after the run, neither of which changes a number.
+RESUME_MAY_CHANGE = ("resume", "keep_checkpoint")
+
+
+class RunFolderError(RuntimeError):
+    """A run folder that cannot be started or continued as asked (the message says why and what to do)."""
+
+
+def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
+    """Write ``path`` through a temporary file beside it and an atomic rename: readers see old or new, never half."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def git_revision() -> str:
+    """The source tree's commit (with ``-dirty`` when it has changes), or ``unknown`` outside git."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True)
+        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=root, capture_output=True, text=True, check=True)
+        return rev.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+# ---- config and history ------------------------------------------------------------------------------------------
+
+
+def _flatten(tree: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(tree, Mapping):
+        flat: dict[str, Any] = {}
+        for key, value in tree.items():
+            flat.update(_flatten(value, f"{prefix}{key}."))
+        return flat if flat or not prefix else {prefix[:-1]: {}}
+    return {prefix[:-1]: tree}
+
+
+def config_changes(old: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, tuple[Any, Any]]:
+    """Every dotted key whose value differs between two resolved configs: ``{key: (old, new)}`` (absent: None)."""
+    flat_old, flat_new = _flatten(old), _flatten(new)
+    missing = object()
+    changes = {}
+    for key in sorted(set(flat_old) | set(flat_new)):
+        before, after = flat_old.get(key, missing), flat_new.get(key, missing)
+        if before != after:
+            changes[key] = (None if before is missing else before, None if after is missing else after)
+    return changes
+
+
+def append_history(run_dir: Path, event: str, **details: Any) -> None:
+    """Add one line to ``history.jsonl`` (appended and flushed: earlier lines are never rewritten)."""
+    line = {"event": event, "time": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+            "git_revision": git_revision(), **details}
+    with open(run_dir / HISTORY, "a") as file:
+        file.write(json.dumps(line, default=str) + "\n")
+        file.flush()
+        os.fsync(file.fileno())
+
+
+def check(run_dir: Path, config: dict[str, Any], resume: bool) -> tuple[int, int] | None:
+    """Check that ``run_dir`` can start (or continue) the run of ``config``, before any compute; write nothing.
+
+    A new run refuses a folder that already holds one. A resume refuses a folder without a checkpoint and a config
+    that differs from the folder's in anything but a larger ``iterations``, naming every differing key. Returns
+    the budget's growth ``(old, new)`` of a resume that extends the run, else None.
+    """
+    saved = run_dir / CONFIG
+    if not resume:
+        if any((run_dir / name).exists() for name in (METRICS, CHECKPOINT, PREVIOUS_CHECKPOINT, SUMMARY)):
+            raise RunFolderError(
+                f"{run_dir} already holds a run; continue it with resume=true (same config) or choose a new folder "
+                "(hydra.run.dir=...)"
+            )
+        return None
+    if not saved.exists():
+        raise RunFolderError(f"resume=true but {saved} does not exist: {run_dir} is not a run folder")
+    old = OmegaConf.to_container(OmegaConf.load(saved), resolve=True)
+    changes = {k: v for k, v in config_changes(old, config).items() if k not in RESUME_MAY_CHANGE}
+    grown = changes.pop("iterations", None)
+    if grown is not None and not (isinstance(grown[0], int) and isinstance(grown[1], int) and grown[1] > grown[0]):
+        changes["iterations"] = grown  # only a larger budget continues the same experiment
+        grown = None
+    if changes:
+        listed = "; ".join(f"{key}: {before!r} -> {after!r}" for key, (before, after) in changes.items())
+        raise RunFolderError(
+            f"resume=true with a config that differs from {saved} in {len(changes)} key(s): {listed}. A resumed run "
+            "must be the same experiment (only a larger iterations may change); start a new folder for a new one"
+        )
+    if not any((run_dir / name).exists() for name in (CHECKPOINT, PREVIOUS_CHECKPOINT)):
+        raise RunFolderError(f"resume=true but {run_dir} has no checkpoint.{_finished_hint(run_dir)}")
+    return grown
+
+
+def record_start(run_dir: Path, config: dict[str, Any], resume: bool) -> None:
+    """Write ``config.yaml`` (new run, or a resume that grows ``iterations``) and the start to ``history.jsonl``;
+    called once the run's state is loaded, so a resume that fails leaves the folder as it was."""
+    grown = check(run_dir, config, resume)
+    if not resume or grown is not None:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write(run_dir / CONFIG, lambda tmp: OmegaConf.save(OmegaConf.create(config), tmp))
+    if not resume:
+        append_history(run_dir, "started", iterations=config.get("iterations"))
+    elif grown is not None:
+        append_history(run_dir, "resumed", iterations={"from": grown[0], "to": grown[1]})
+    else:
+        append_history(run_dir, "resumed", iterations=config.get("iterations"))
+
+
+def _finished_hint(run_dir: Path) -> str:
+    if (run_dir / SUMMARY).exists() and (run_dir / POLICY).exists():
+        return (" The run finished with keep_checkpoint=final, which keeps only policy.pt: to extend a run, train it "
+                "with keep_checkpoint=all.")
+    return ""
+
+
+# ---- checkpoints -------------------------------------------------------------------------------------------------
+
+
+def save_checkpoint(run_dir: Path, state: dict[str, Any]) -> None:
+    """Write ``checkpoint.pt``, keeping the one it replaces as ``checkpoint.prev.pt``.
+
+    The new file is complete on disk before either rename, so a kill at any point leaves at least one whole
+    checkpoint (between the renames: only the previous one, which ``load_checkpoint`` then uses).
+    """
+    import torch  # here, so that the report (which reads only the names above) does not load torch
+
+    current, previous = run_dir / CHECKPOINT, run_dir / PREVIOUS_CHECKPOINT
+    tmp = current.with_name(f".{current.name}.tmp")
+    with open(tmp, "wb") as file:
+        torch.save(state, file)
+        file.flush()
+        os.fsync(file.fileno())
+    if current.exists():
+        os.replace(current, previous)
+    os.replace(tmp, current)
+
+
+def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> dict[str, Any]:
+    """The newest readable checkpoint of ``run_dir``: ``checkpoint.pt``, or, when that is missing, truncated or
+    corrupt, ``checkpoint.prev.pt`` (with a warning naming the bad file and the error)."""
+    import torch
+
+    problems, unreadable = [], []
+    for name in (CHECKPOINT, PREVIOUS_CHECKPOINT):
+        path = run_dir / name
+        if not path.exists():
+            problems.append(f"{name}: missing")
+            continue
+        try:
+            state = torch.load(path, map_location=map_location, weights_only=False)
+        except Exception as error:  # noqa: BLE001 (a torn or corrupt file raises whatever the unpickler meets)
+            problems.append(f"{name}: unreadable ({type(error).__name__}: {error})")
+            unreadable.append(problems[-1])
+            print(f"warning: {path} is unreadable ({type(error).__name__}: {error}); trying the previous checkpoint",
+                  file=sys.stderr)
+            continue
+        if unreadable:
+            append_history(run_dir, "checkpoint_fallback", unreadable=unreadable, used=name)
+        return state
+    raise RunFolderError(
+        f"resume=true but {run_dir} has no readable checkpoint ({'; '.join(problems)}).{_finished_hint(run_dir)}"
+    )
+
+
+def save_policy(run_dir: Path, modules_state: dict[str, Any]) -> None:
+    """Write ``policy.pt``: the learner's networks (``Algorithm.modules()`` state), small enough to keep."""
+    import torch
+
+    atomic_write(run_dir / POLICY, lambda tmp: torch.save(modules_state, tmp))
+
+
+def drop_training_state(run_dir: Path) -> None:
+    """Remove both checkpoint generations (after ``policy.pt`` and ``summary.json`` are written)."""
+    for name in (CHECKPOINT, PREVIOUS_CHECKPOINT):
+        (run_dir / name).unlink(missing_ok=True)
