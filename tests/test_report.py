@@ -516,6 +516,18 @@ def test_report_on_a_real_two_seed_sweep_in_under_a_minute(tiny_sweep, tmp_path)
     assert ego["value"].iloc[0] == pytest.approx(np.mean([s["ego/success_rate"] for s in summaries]))
 
 
+def test_a_run_folder_written_before_a_key_existed_still_replays(tiny_sweep, tmp_path):
+    from sidewalk.report import load_experiment
+
+    run = tmp_path / "old_run"
+    shutil.copytree(next(tiny_sweep.glob("0_*")), run)
+    config = OmegaConf.load(run / "config.yaml")
+    del config["keep_checkpoint"]  # the key came with the run-folder rules; older folders lack it
+    OmegaConf.save(config, run / "config.yaml")
+    experiment = load_experiment(run)
+    assert experiment.keep_checkpoint == "final" and experiment.iterations == config.iterations
+
+
 def test_render_a_run_and_scripted_agents(tiny_sweep, tmp_path, capsys):
     render = runner("render")
     run = next(tiny_sweep.glob("0_*"))  # a sweep job folder: its name has '=' in it
