@@ -1,0 +1,70 @@
+"""Evaluation computes the policy once per distinct input and gives what the plain batched loop gives."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from torchrl.envs import RewardSum, TransformedEnv
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+import sidewalk.evaluate as evaluation
+from sidewalk.algos import ALGORITHMS
+from sidewalk.config import register_schemas, validate
+from sidewalk.experiment import make_view
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+register_schemas()
+
+
+def learner_and_view(*overrides: str, worlds: int = 64):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        exp = validate(compose(config_name="config", overrides=["logger=none", *overrides]))
+    torch.manual_seed(0)
+    algo = ALGORITHMS[exp.algo.name](exp.algo, TransformedEnv(make_view(exp, 8, 0), RewardSum()))
+    return algo.evaluation_policy(), make_view(exp, worlds, 7)
+
+
+class CountingPolicy(torch.nn.Module):
+    """The policy, counting the inputs it is called on."""
+
+    def __init__(self, policy) -> None:
+        super().__init__()
+        self.policy, self.in_keys, self.out_keys, self.inputs = policy, policy.in_keys, policy.out_keys, []
+
+    def forward(self, td):
+        self.inputs.append(td.batch_size[0])
+        return self.policy(td)
+
+
+def test_policy_runs_once_per_distinct_observation_of_the_running_worlds():
+    policy, view = learner_and_view("env=discrete", worlds=8)
+    td = view.reset()  # noise 0: every world starts alike
+    observation = td.get("observation").clone()
+    observation[5:] = torch.randint_like(observation[5:], 0, 255)  # three more distinct worlds
+    td.set("observation", observation)
+    running = torch.tensor([True, True, True, True, True, True, True, False])
+    counting = CountingPolicy(policy)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        out = evaluation.act_on_distinct(counting, td.clone(), running)
+        plain = policy(td.clone())
+    assert counting.inputs == [3]  # worlds 0-4 share one image; 5 and 6 differ; 7 has finished
+    assert torch.equal(out.get("action")[:7], plain.get("action")[:7])
+    assert torch.equal(out.get("action")[7], out.get("action")[0])  # a finished world gets a valid action
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [("env=discrete", "noise=0.1"), ("env=continuous", "noise=0.5"), ("env=discrete", "opponent=centralized")],
+    ids=["grid-dqn", "continuous-trpo", "grid-centralized"],
+)
+def test_evaluation_equals_the_plain_batched_loop(monkeypatch, overrides):
+    policy, view = learner_and_view(*overrides)
+    fast = evaluation.evaluate(view, policy, seed=11)
+    monkeypatch.setattr(evaluation, "act_on_distinct", lambda policy, td, running: policy(td))
+    plain = evaluation.evaluate(view, policy, seed=11)
+    assert fast.keys() == plain.keys()
+    for key in fast:
+        assert fast[key] == pytest.approx(plain[key], nan_ok=True), key
