@@ -79,7 +79,7 @@ class DQN(Algorithm):
         if not self.discrete_actions:
             raise ValueError("algo=dqn needs a discrete action space (env=discrete); use algo=trpo or algo=ppo")
         n_actions = int(self.action_spec.space.n)
-        encoder = make_encoder(self.observation_spec.shape, is_image_spec(self.observation_spec))
+        encoder = make_encoder(self.observation_spec.shape, is_image_spec(self.observation_spec), channels_last=True)
         q_network = nn.Sequential(encoder, DuelingHead(encoder.out_features, n_actions, cfg.hidden)).to(self.device)
         spec = self.action_spec.clone().to(self.device)
         self.actor = QValueActor(q_network, in_keys=["observation"], spec=spec)

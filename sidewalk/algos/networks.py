@@ -25,24 +25,28 @@ def min_image_side(conv: dict | None = None) -> int:
 class ImageEncoder(nn.Module):
     """uint8 grey images (..., C, H, W) → features, through the paper's conv stack (ReLU), flattened.
 
-    The convolutions run channels-last: on CPU oneDNN's channels-last kernels take a gradient step of the default
-    DQN batch (128 images of 14×30, three forwards and a backward) in about half the time of NCHW's
-    (``python runners/bench.py budget`` measures it). Weights keep that layout through ``.to(device)``, clones and
-    ``load_state_dict``; a checkpoint written either way loads into either."""
+    ``channels_last``: the weights are stored channels-last, so oneDNN runs its channels-last kernels: the default
+    DQN update is ~14 % faster (backward ~28 %) in a full run (an A/B with ``runners/bench.py budget``'s probes).
+    Weights keep that layout through ``.to(device)``, clones and ``load_state_dict``; a state dict written either
+    way loads into either. Off for TRPO and PPO, whose flat parameter vectors (``parameters_to_vector``) need
+    contiguous weights."""
 
-    def __init__(self, in_shape: torch.Size, conv: dict | None = None) -> None:
+    def __init__(self, in_shape: torch.Size, conv: dict | None = None, channels_last: bool = False) -> None:
         super().__init__()
         conv = dict(PAPER_CONV if conv is None else conv)
-        self.net = ConvNet(in_features=in_shape[-3], activation_class=nn.ReLU, **conv).to(
-            memory_format=torch.channels_last
-        )
+        self.net = ConvNet(in_features=in_shape[-3], activation_class=nn.ReLU, **conv)
+        if channels_last:
+            self.net = self.net.to(memory_format=torch.channels_last)
         with torch.no_grad():
             self.out_features = self.forward(torch.zeros(1, *in_shape[-3:], dtype=torch.uint8)).shape[-1]
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         batch = image.shape[:-3]
         pixels = image.reshape(-1, *image.shape[-3:]).to(torch.float32) / 255.0
-        features = self.net(pixels.contiguous(memory_format=torch.channels_last))
+        # The weights' layout picks the kernels (PyTorch runs a conv channels-last when its input or weight is), so
+        # the input needs no conversion, which also keeps the encoder usable under torch.func.vmap (TRPO's
+        # per-sample Fisher products), where querying a memory format is not implemented.
+        features = self.net(pixels)
         return features.reshape(*batch, -1)
 
 
@@ -57,9 +61,10 @@ class VectorEncoder(nn.Module):
         return vector.to(torch.float32)
 
 
-def make_encoder(observation_shape: torch.Size, is_image: bool) -> nn.Module:
-    """The encoder for an observation: the conv stack for images, identity for vectors."""
-    return ImageEncoder(observation_shape) if is_image else VectorEncoder(observation_shape)
+def make_encoder(observation_shape: torch.Size, is_image: bool, channels_last: bool = False) -> nn.Module:
+    """The encoder for an observation: the conv stack for images (``channels_last`` as in ``ImageEncoder``),
+    identity for vectors."""
+    return ImageEncoder(observation_shape, channels_last=channels_last) if is_image else VectorEncoder(observation_shape)
 
 
 def is_image_spec(spec) -> bool:
