@@ -59,10 +59,13 @@ def run_episodes(
     *,
     seed: int | None = None,
     record_trajectories: int = 0,
+    deterministic: bool = True,
 ) -> EpisodeRecord:
     """Play one episode in every world of ``env`` (an ego or centralized view, B worlds = B episodes).
 
-    ``policy`` acts deterministically (greedy / distribution mode); ``None`` plays uniformly random actions.
+    ``policy`` acts deterministically (greedy / distribution mode), so it runs once per distinct input
+    (``act_on_distinct``); a policy that samples whatever the context (a collection policy) needs
+    ``deterministic=False``, so that every world draws its own action. ``None`` plays uniformly random actions.
     ``seed`` reseeds the env first, so repeated evaluations see the same noise and opponent draws.
     """
     if seed is not None:
@@ -93,7 +96,10 @@ def run_episodes(
 
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(core.params.max_steps + 1):
-            td = act_on_distinct(policy, td, ~finished) if policy is not None else env.rand_action(td)
+            if policy is None:
+                td = env.rand_action(td)
+            else:
+                td = act_on_distinct(policy, td, ~finished) if deterministic else policy(td)
             td = env.step(td)
             nxt = td.get("next")
             world = nxt.get("world")
@@ -149,6 +155,8 @@ def act_on_distinct(policy: TensorDictModuleBase, td: TensorDictBase, running: t
     outputs for equal inputs, so this changes no result beyond floating-point differences between batch sizes.
     """
     in_keys = list(policy.in_keys)
+    if not in_keys:  # reads no input (a fixed action): nothing to share
+        return policy(td)
     rows = running.nonzero().squeeze(-1)
     if rows.numel() == 0:
         rows = torch.zeros(1, dtype=torch.long, device=running.device)
@@ -207,6 +215,9 @@ def summarize(record: EpisodeRecord) -> dict[str, float]:
     return metrics
 
 
-def evaluate(env: EnvBase, policy: TensorDictModuleBase | None, *, seed: int | None = None) -> dict[str, float]:
-    """Metrics of one episode in each of ``env``'s worlds under ``policy`` (see ``summarize``)."""
-    return summarize(run_episodes(env, policy, seed=seed))
+def evaluate(
+    env: EnvBase, policy: TensorDictModuleBase | None, *, seed: int | None = None, deterministic: bool = True
+) -> dict[str, float]:
+    """Metrics of one episode in each of ``env``'s worlds under ``policy`` (see ``summarize``; ``deterministic``
+    as in ``run_episodes``)."""
+    return summarize(run_episodes(env, policy, seed=seed, deterministic=deterministic))

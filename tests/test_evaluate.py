@@ -68,3 +68,10 @@ def test_evaluation_equals_the_plain_batched_loop(monkeypatch, overrides):
     assert fast.keys() == plain.keys()
     for key in fast:
         assert fast[key] == pytest.approx(plain[key], nan_ok=True), key
+
+
+def test_a_sampling_policy_draws_for_every_world():
+    policy, view = learner_and_view("env=continuous", worlds=16)
+    counting = CountingPolicy(policy)
+    evaluation.run_episodes(view, counting, seed=3, deterministic=False)
+    assert set(counting.inputs) == {16}  # never deduplicated: equal inputs would share one draw

@@ -84,7 +84,7 @@ def untrained(
             torch.manual_seed(seed)
             view = make_view(experiment, episodes, seed)
             algo = ALGORITHMS[algo_name](experiment.algo, view)
-            metrics = evaluate(view, algo.collection_policy(), seed=seed)
+            metrics = evaluate(view, algo.collection_policy(), seed=seed, deterministic=False)  # it samples
             outcome = _outcome(metrics, opponent)
             rows.append(
                 {"learner": algo_name, "opponent": opponent, "episodes": episodes,
