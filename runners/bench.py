@@ -6,7 +6,7 @@
     python runners/bench.py training           # minutes: time to 0.9 ego success, ours vs Stable-Baselines3 DQN
     python runners/bench.py learners --opponent prm    # hours: our TRPO/PPO vs sb3-contrib TRPO / SB3 PPO
     python runners/bench.py geometry           # ~6 min: what the continuous geometry allows (untrained success, ...)
-    python runners/bench.py budget --baseline f082f2a   # ~10 min: per-iteration time budget, beside a revision
+    python runners/bench.py budget --baseline f082f2a   # ~6 min: per-iteration time budget, beside a revision
 
 Sections: ``env`` (env-steps/s of both domains beside VMAS give_way), ``planning`` (µs per plan per world of the
 scripted planners beside scipy), ``views`` (env-steps/s of the learner views with their opponents), ``training``
