@@ -215,10 +215,12 @@ def main(argv: list[str] | None = None) -> int:
         run_dir = Path(runs[0])
         if not run_dir.is_dir():
             parser.error(f"{run_dir} is not a folder; give a run folder (with config.yaml and policy.pt)")
-        if not (run_dir / "config.yaml").exists():
-            parser.error(f"{run_dir} has no config.yaml; give a run folder written by runners/main.py")
-        if not any((run_dir / name).exists() for name in ("policy.pt", "checkpoint.pt")):
-            parser.error(f"{run_dir} has no policy.pt or checkpoint.pt; give a run folder written by runners/main.py")
+        from sidewalk.report.runs import CONFIG, POLICY_FILES, policy_file
+
+        if not (run_dir / CONFIG).exists():
+            parser.error(f"{run_dir} has no {CONFIG}; give a run folder written by runners/main.py")
+        if policy_file(run_dir) is None:
+            parser.error(f"{run_dir} has no {POLICY_FILES}; give a run folder written by runners/main.py")
         out = args.out or run_dir / f"episode{args.episode}.gif"
     else:
         ego = args.ego or "random"

@@ -102,10 +102,10 @@ class Algorithm(abc.ABC):
         return {}
 
     def state_dict(self) -> dict[str, Any]:
+        """The networks (``policy_state_dict``) and the optimisers' state: what a checkpoint keeps."""
         return {
-            "modules": {name: module.state_dict() for name, module in self.modules().items()},
+            **self.policy_state_dict(),
             "optimizers": {name: opt.state_dict() for name, opt in self.optimizers().items()},
-            "frames_seen": self.frames_seen,
         }
 
     def policy_state_dict(self) -> dict[str, Any]:
@@ -119,8 +119,6 @@ class Algorithm(abc.ABC):
         self.frames_seen = state["frames_seen"]
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        for name, module in self.modules().items():
-            module.load_state_dict(state["modules"][name])
+        self.load_policy_state_dict(state)
         for name, opt in self.optimizers().items():
             opt.load_state_dict(state["optimizers"][name])
-        self.frames_seen = state["frames_seen"]
