@@ -162,7 +162,7 @@ def act_on_distinct(policy: TensorDictModuleBase, td: TensorDictBase, running: t
         rows = torch.zeros(1, dtype=torch.long, device=running.device)
     inputs = td.select(*in_keys)[rows]
     flat = torch.cat([inputs.get(key).reshape(rows.numel(), -1).to(torch.float64) for key in in_keys], dim=-1)
-    distinct, first_of, inverse = _distinct_rows(flat)
+    first_of, inverse = _distinct_rows(flat)
     outputs = policy(inputs[first_of])
     # Every world gets the output of its distinct row; finished worlds that of the first running world.
     of_world = torch.zeros(td.batch_size[0], dtype=torch.long, device=running.device)
@@ -172,13 +172,12 @@ def act_on_distinct(policy: TensorDictModuleBase, td: TensorDictBase, running: t
     return td
 
 
-def _distinct_rows(flat: torch.Tensor) -> tuple[int, torch.Tensor, torch.Tensor]:
-    """(number of distinct rows, index of one row of each, the distinct row of every row)."""
-    _, inverse = torch.unique(flat, dim=0, return_inverse=True)
-    count = int(inverse.max()) + 1
-    first_of = torch.full((count,), flat.shape[0], dtype=torch.long, device=flat.device)
+def _distinct_rows(flat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(the first row of each distinct row, the distinct row of every row)."""
+    distinct, inverse = torch.unique(flat, dim=0, return_inverse=True)
+    first_of = torch.full((distinct.shape[0],), flat.shape[0], dtype=torch.long, device=flat.device)
     first_of.scatter_reduce_(0, inverse, torch.arange(flat.shape[0], device=flat.device), reduce="amin")
-    return count, first_of, inverse
+    return first_of, inverse
 
 
 def _group_metrics(record: EpisodeRecord, agents: list[int]) -> dict[str, float]:

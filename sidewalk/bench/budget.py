@@ -43,8 +43,9 @@ RUNS: dict[str, tuple[str, ...]] = {
     "trpo": ("env=continuous",),  # the paper's continuous learner, at its defaults
 }
 TRUST = 0.9
+PART_COLUMN = "part (ms per iteration; median over seeds)"
 
-# Rows: (label, part, probe label); part None marks a part's total. Order as the loop runs.
+# Rows: (label, part, probe label); probe None marks a part's total. Order as the loop runs.
 LAYOUT: tuple[tuple[str, str | None, str | None], ...] = (
     ("collection", "collection", None),
     ("  environment step", "collection", "env step"),
@@ -68,6 +69,8 @@ LAYOUT: tuple[tuple[str, str | None, str | None], ...] = (
     ("metrics.csv + logger", "metrics.csv + logger", None),
     ("loop rest (build, train metrics, bar)", "trial", None),
 )
+
+LISTED_PARTS = {part for _, part, _ in LAYOUT if part != "trial"} | {OUTSIDE}
 
 
 def parse_options(argv: Sequence[str]) -> dict[str, Any]:
@@ -116,8 +119,7 @@ def _budget_rows(runs: list[dict[str, Any]]) -> dict[str, float]:
     def per_iteration(run: dict[str, Any], part: str, label: str | None) -> float:
         exclusive = run["probes"]["exclusive"]
         if part == "trial":  # everything in Trial.run outside the loop parts above it
-            listed = {p for _, p, _ in LAYOUT if p != "trial"} | {OUTSIDE}
-            seconds = sum(v for k, v in exclusive.items() if k.split("/", 1)[0] not in listed)
+            seconds = sum(v for k, v in exclusive.items() if k.split("/", 1)[0] not in LISTED_PARTS)
         elif label is None:
             seconds = sum(v for k, v in exclusive.items() if k.split("/", 1)[0] == part)
         else:
@@ -170,9 +172,11 @@ def format_rows(rows: list[dict[str, Any]]) -> str:
         timed = row["timed"]
         names = list(timed)
         budgets = {name: _budget_rows(runs) for name, runs in timed.items()}
+        # format_table right-aligns; labels padded to one width read as a left-aligned, indented tree.
+        width = max(len(PART_COLUMN), *map(len, budgets[names[0]]))
         table = []
         for label in budgets[names[0]]:
-            line: dict[str, Any] = {"part (ms per iteration; median over seeds)": label}
+            line: dict[str, Any] = {PART_COLUMN: label.ljust(width)}
             for name in names:
                 line[name] = budgets[name][label]
             if len(names) == 2 and budgets[names[0]][label] > 0:
@@ -186,16 +190,10 @@ def format_rows(rows: list[dict[str, Any]]) -> str:
             trusted = sum(all(v >= TRUST for v in run["last_three"]) for run in timed[name])
             trust.append(f"{name}: last three evaluations per seed [{'; '.join(lasts)}], "
                          f"{trusted} of {len(lasts)} seeds ≥ {TRUST} at all three")
-        # The part column reads as a tree: left-aligned, children indented.
-        text = format_table(table).splitlines()
-        width = len(text[1].split("  ")[0])
-        lines = [line[:width].strip().ljust(width) + line[width:] if i != 1 else line for i, line in enumerate(text)]
-        for i, entry in enumerate(table, start=2):
-            label = entry["part (ms per iteration; median over seeds)"]
-            lines[i] = label.ljust(width) + lines[i][width:]
         blocks.append(f"### {row['run']}: runners/main.py {row['overrides']} "
                       f"({', '.join(f'{n}: {i} iterations' for n, i in iterations.items())})\n"
-                      + "\n".join(lines) + "\n" + "\n".join(trust))
+                      + format_table(table).replace(PART_COLUMN.rjust(width), PART_COLUMN.ljust(width), 1)
+                      + "\n" + "\n".join(trust))
     return "\n\n".join(blocks)
 
 

@@ -58,7 +58,6 @@ OUTSIDE = "outside Trial.run"
 
 _stack: list[list[Any]] = []  # [label, start, seconds spent in probes called inside]
 exclusive: dict[str, float] = defaultdict(float)  # "part/label" -> seconds
-calls: dict[str, int] = defaultdict(int)  # loop part -> calls
 
 
 def _probe(label: str, fn: Callable) -> Callable:
@@ -79,8 +78,6 @@ def _probe(label: str, fn: Callable) -> Callable:
             if label != OUTER and not any(entry[0] == OUTER for entry in _stack):
                 part = OUTSIDE  # e.g. main.py's report replaying the final evaluation
             exclusive[f"{part}/{label}"] += elapsed - frame[2]
-            if not parts and label != OUTER:
-                calls[part] += 1
             if _stack:
                 _stack[-1][2] += elapsed
 
@@ -116,7 +113,6 @@ def main(argv: list[str]) -> int:
     result = {
         "seconds": time.perf_counter() - started,
         "exclusive": dict(exclusive),
-        "calls": dict(calls),
         "missing": missing,
         "exit_code": code,
     }
