@@ -25,11 +25,15 @@ from sidewalk._checks import check_int, check_range
 class AlgoConfig:
     """Settings every learner has. ``frames_per_batch`` is one collector batch, i.e. one training iteration, collected
     from ``default_num_envs`` worlds stepped together unless the experiment's ``num_envs`` says otherwise (as
-    BenchMARL gives on- and off-policy learners their own number of environments)."""
+    BenchMARL gives on- and off-policy learners their own number of environments). ``default_iterations`` and
+    ``default_eval_every`` are the length of a run and its evaluation period when the experiment does not set them:
+    a learner whose iteration holds more frames needs fewer of them."""
 
     name: str = "?"
     frames_per_batch: int = 256
     default_num_envs: int = 32
+    default_iterations: int = 500
+    default_eval_every: int = 50
     gamma: float = 0.99
     lr: float = 3e-4
     max_grad_norm: float = 10.0
@@ -37,6 +41,8 @@ class AlgoConfig:
     def __post_init__(self) -> None:
         check_int("algo.frames_per_batch", self.frames_per_batch, 1)
         check_int("algo.default_num_envs", self.default_num_envs, 1)
+        check_int("algo.default_iterations", self.default_iterations, 1)
+        check_int("algo.default_eval_every", self.default_eval_every, 0)
         check_range("algo.gamma", self.gamma, 0.0, 1.0)
         check_range("algo.lr", self.lr, 0.0, 1.0, low_open=True)
         check_range("algo.max_grad_norm", self.max_grad_norm, 0.0, low_open=True)
