@@ -48,6 +48,22 @@ def test_algo_yaml_mirrors_its_schema(name):
     assert {k: v for k, v in yaml.items() if k != "defaults"} == defaults
 
 
+@pytest.mark.parametrize(
+    "overrides, expected",
+    [
+        ([], (128, 200, 25, 512)),  # DQN: 4 steps of 128 worlds an iteration, 200 of them
+        (["env=continuous"], (128, 500, 50, 2048)),  # TRPO
+        (["iterations=7", "eval_every=3", "num_envs=8"], (8, 7, 3, 512)),  # the command line wins
+        (["+experiment=fig5_discrete"], (32, 5000, 50, 128)),  # the reference runs' settings, pinned
+        (["+experiment=fig6_discrete", "scale=quick"], (32, 20, 5, 128)),
+    ],
+)
+def test_run_length_and_worlds_come_from_the_learner_unless_given(overrides, expected):
+    experiment = validate(composed(*overrides))
+    assert (experiment.num_envs, experiment.iterations, experiment.eval_every,
+            experiment.algo.frames_per_batch) == expected
+
+
 @pytest.mark.parametrize("name", ["random", "dijkstra", "prm"])
 def test_opponent_yaml_mirrors_the_constructor_defaults(name):
     import inspect
