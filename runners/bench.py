@@ -3,19 +3,24 @@
     python runners/bench.py                    # the env, planning and views sections
     python runners/bench.py env --num-envs 4096 --threads 1
     python runners/bench.py planning views
-    python runners/bench.py training           # minutes: time to 0.9 ego success, ours vs Stable-Baselines3 DQN
+    python runners/bench.py training           # ~30 min: time to 3 evaluations >= 0.9, ours vs Stable-Baselines3 DQN
     python runners/bench.py learners --opponent prm    # hours: our TRPO/PPO vs sb3-contrib TRPO / SB3 PPO
     python runners/bench.py geometry           # ~6 min: what the continuous geometry allows (untrained success, ...)
     python runners/bench.py budget --baseline f082f2a   # ~6 min: per-iteration time budget, beside a revision
+    python runners/bench.py reproduce --baseline 4549d80  # ~15 min: runners/reproduce.sh full's wall-clock, estimated
 
 Sections: ``env`` (env-steps/s of both domains beside VMAS give_way), ``planning`` (µs per plan per world of the
 scripted planners beside scipy), ``views`` (env-steps/s of the learner views with their opponents), ``training``
-(wall clock to 0.9 ego success against Dijkstra and frames/s, our DQN beside SB3's; not run by default),
+(training time to three evaluations in a row with ego success ≥ 0.9 against Dijkstra at noise 0.1, frames/s and
+cost per gradient step, our DQN beside SB3's; not run by default),
 ``learners`` (final ego success of our TRPO and PPO beside sb3-contrib's TRPO and SB3's PPO on the continuous
 sidewalk at equal seeds and frames; not run by default), ``geometry`` (untrained-policy success, scripted returns
 and the PRM agent passing an ego, at the continuous defaults; not run by default), ``budget`` (where an
 iteration's time goes in the default DQN run and the TRPO run, ``runners/main.py`` end to end, optionally beside
-another revision: ``--baseline``, ``--seeds``, ``--runs``, ``--trpo-iterations``; not run by default). Flags after the sections that are not the ones below go
+another revision: ``--baseline``, ``--seeds``, ``--runs``, ``--trpo-iterations``; not run by default),
+``reproduce`` (the wall-clock of ``runners/reproduce.sh full`` estimated from measured per-iteration costs,
+optionally beside another revision: ``--baseline``, ``--processes``, ``--probe-iterations``, ``--probe-period``;
+not run by default). Flags after the sections that are not the ones below go
 to the sections that take flags of their own (``learners``: ``--opponent``, ``--frames``, ``--seeds``,
 ``--setups``, ``--learners``, ``--noise``, ``--eval-episodes``; see ``python -m sidewalk.bench.learners -h``).
 A section module has ``run(**kwargs) -> list[dict]``; it may add ``parse_options(argv) -> kwargs`` (its own flags,
@@ -40,6 +45,7 @@ SECTIONS = {
     "learners": "sidewalk.bench.learners",
     "geometry": "sidewalk.bench.geometry",
     "budget": "sidewalk.bench.budget",
+    "reproduce": "sidewalk.bench.reproduce",
 }
 DEFAULT_SECTIONS = ("env", "planning", "views")
 

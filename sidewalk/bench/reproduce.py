@@ -1,0 +1,232 @@
+"""The paper's reproduction, priced: the wall-clock of ``runners/reproduce.sh full`` (every preset at the paper's
+budgets, continuous 5000 iterations included) estimated from per-iteration costs measured on this machine, with
+``--processes`` runs at a time, optionally beside another revision measured the same way in the same call.
+
+    python runners/bench.py reproduce                               # ~8 min: this checkout, 2 processes
+    python runners/bench.py reproduce --baseline 4549d80            # ~15 min: also the reference runs' revision
+
+Every distinct run of the presets that ``runners/reproduce.sh`` sweeps (the preset's sweep parameters, seeds
+aside: a seed changes what is learned, not what an iteration costs) is probed once: ``runners/main.py`` with the
+run's overrides for ``--probe-iterations`` iterations, an evaluation and a checkpoint every ``probe_period``, and
+its ``metrics.csv`` times per iteration read apart into
+
+- ``ms/iteration``: the mean of the iterations after the first ``WARMUP`` (DQN learns from its 8th) that neither
+  evaluate nor follow a checkpoint (collection, update, metrics; the work that scales with the budget);
+- ``eval s`` and ``checkpoint s``: an evaluating iteration's (a checkpoint's next iteration's) excess over that;
+- ``fixed s``: the process's wall-clock outside the training loop (imports, config, final policy, plots).
+
+A run of ``iterations`` then costs fixed + iterations × ms/iteration + its evaluations and checkpoints at the
+preset's periods; each preset's runs are packed onto ``--processes`` workers longest first (as Hydra's joblib
+launcher would run them with ``hydra.launcher.n_jobs``) and the presets run one after another, as the script does.
+The probes themselves run ``--processes`` at a time (``--probes-at-once``), pairing the two revisions' probes of one
+run, so each is measured under the contention of a full machine. Caveats, both making the estimate low or high by little: the
+probe's policies are untrained (an untrained continuous policy's evaluation episodes run longer than a trained
+one's, so ``eval s`` is high), and its replay buffer is small (a DQN checkpoint writes the buffer, at most 90 MB).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import math
+import os
+import re
+import shlex
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[2]
+SCRIPT = ROOT / "runners" / "reproduce.sh"
+WARMUP = 10  # iterations left out of ms/iteration: DQN's first updates start after 1000 frames (8 iterations)
+PROBE_ITERATIONS = 40
+PROBE_PERIOD = 20  # iterations between the probe's evaluations and checkpoints
+
+
+def presets() -> list[str]:
+    """The presets ``runners/reproduce.sh`` sweeps, read from its ``presets=(...)`` line."""
+    match = re.search(r"^presets=\(([^)]*)\)", SCRIPT.read_text(), re.MULTILINE)
+    if match is None:
+        raise RuntimeError(f"{SCRIPT} has no presets=(...) line")
+    return match.group(1).split()
+
+
+def sweep(preset: str) -> dict[str, Any]:
+    """The preset's runs (each a list of overrides) and its periods, as ``runners/main.py -m`` would expand it."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from sidewalk.bench.common import CONF_DIR
+    from sidewalk.config import register_schemas
+
+    register_schemas()
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=[f"+experiment={preset}"], return_hydra_config=True)
+    params = {key: str(value).split(",") for key, value in cfg.hydra.sweeper.params.items()}
+    names = list(params)
+    runs = [[f"{name}={value}" for name, value in zip(names, values)] for values in itertools.product(*params.values())]
+    return {"preset": preset, "runs": runs, "iterations": int(cfg.iterations), "eval_every": int(cfg.eval_every),
+            "checkpoint_every": int(cfg.checkpoint_every)}
+
+
+def _probe(tree: Path, overrides: list[str], workdir: Path, iterations: int, period: int) -> dict[str, float]:
+    """One short ``runners/main.py`` in ``tree``: its per-iteration, evaluation, checkpoint and fixed costs."""
+    run_dir = workdir / "run"
+    command = [sys.executable, "runners/main.py", *overrides, f"iterations={iterations}", f"eval_every={period}",
+               f"checkpoint_every={period}", f"hydra.run.dir={run_dir}"]
+    started = time.perf_counter()
+    result = subprocess.run(command, cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)},
+                            capture_output=True, text=True)
+    wall = time.perf_counter() - started
+    if result.returncode != 0:
+        raise RuntimeError(f"{shlex.join(command)} failed in {tree}:\n{result.stderr[-3000:]}")
+    return costs_from_metrics(pd.read_csv(run_dir / "metrics.csv"), wall, period)
+
+
+def costs_from_metrics(rows: pd.DataFrame, wall_s: float, period: int) -> dict[str, float]:
+    """A probe's costs from its ``metrics.csv`` (``iteration``, cumulative ``time_s``), its process wall-clock and its
+    evaluation and checkpoint period (see the module's docstring)."""
+    seconds = rows["time_s"].diff().fillna(rows["time_s"].iloc[0]).to_numpy()
+    iteration = rows["iteration"].to_numpy()
+    evaluating = iteration % period == 0
+    after_checkpoint = (iteration - 1) % period == 0
+    steady = [s for s, i, e, c in zip(seconds, iteration, evaluating, after_checkpoint) if i > WARMUP and not (e or c)]
+    per_iteration = statistics.fmean(steady)
+    evals = [s - per_iteration for s, e in zip(seconds, evaluating) if e]
+    checkpoints = [s - per_iteration for s, i, c in zip(seconds, iteration, after_checkpoint) if c and i > 1]
+    return {"ms_per_iteration": 1000 * per_iteration, "eval_s": statistics.fmean(evals),
+            "checkpoint_s": statistics.fmean(checkpoints) if checkpoints else 0.0,
+            "fixed_s": wall_s - float(rows["time_s"].iloc[-1])}
+
+
+def run_seconds(cost: dict[str, float], iterations: int, eval_every: int, checkpoint_every: int) -> float:
+    """Estimated wall-clock of one run of ``iterations`` from its probe's costs."""
+    evaluations = math.ceil(iterations / eval_every) if eval_every else 1
+    checkpoints = (iterations - 1) // checkpoint_every if checkpoint_every else 0
+    return (cost["fixed_s"] + iterations * cost["ms_per_iteration"] / 1000 + evaluations * cost["eval_s"]
+            + checkpoints * cost["checkpoint_s"])
+
+
+def makespan(seconds: Sequence[float], processes: int) -> float:
+    """Wall-clock of jobs packed longest first onto ``processes`` workers."""
+    workers = [0.0] * processes
+    for job in sorted(seconds, reverse=True):
+        workers[workers.index(min(workers))] += job
+    return max(workers)
+
+
+def run(baseline: str | None = None, processes: int = 2, probe_iterations: int = PROBE_ITERATIONS,
+        probe_period: int = PROBE_PERIOD, probes_at_once: int | None = None) -> list[dict[str, Any]]:
+    """Rows per distinct run, per sweep and in total; ``probes_at_once`` (default: ``processes``) probes run side by
+    side, so that each is measured under the load of the estimate's ``processes`` (fewer when other work shares the
+    machine)."""
+    if probe_period < 2 or probe_iterations < WARMUP + probe_period + 2:
+        raise ValueError(f"--probe-iterations {probe_iterations} with --probe-period {probe_period}: the probe needs "
+                         f"a period of at least 2 and at least {WARMUP + probe_period + 2} iterations (an evaluation, "
+                         f"a checkpoint and steady iterations after {WARMUP} of warm-up)")
+    sweeps = [sweep(preset) for preset in presets()]
+    # The distinct runs: overrides without the seed (the probe runs seed 0).
+    distinct = {}
+    for spec in sweeps:
+        for overrides in spec["runs"]:
+            key = (spec["preset"], *[o for o in overrides if not o.startswith("seed=")])
+            distinct[key] = [f"+experiment={spec['preset']}", *key[1:], "seed=0"]
+    with tempfile.TemporaryDirectory(prefix="sidewalk-reproduce-") as tmp:
+        trees = {"this checkout": ROOT}
+        if baseline is not None:
+            worktree = Path(tmp) / "baseline"
+            subprocess.run(["git", "worktree", "add", "--detach", "--quiet", str(worktree), baseline],
+                           cwd=ROOT, check=True)
+            trees = {f"baseline {baseline}": worktree, "this checkout": ROOT}
+        try:
+            jobs = [(key, name, tree) for key in distinct for name, tree in trees.items()]
+
+            def probe(job):
+                key, name, tree = job
+                workdir = Path(tmp) / f"{len(jobs)}-{abs(hash((key, name)))}"
+                print(f"reproduce: probing {' '.join(key)} on {name} ...", file=sys.stderr, flush=True)
+                return _probe(tree, list(distinct[key]), workdir, probe_iterations, probe_period)
+
+            with ThreadPoolExecutor(max_workers=probes_at_once or processes) as pool:
+                costs = dict(zip(((key, name) for key, name, _ in jobs), pool.map(probe, jobs)))
+        finally:
+            if baseline is not None:
+                subprocess.run(["git", "worktree", "remove", "--force", str(worktree)], cwd=ROOT, check=False)
+    rows: list[dict[str, Any]] = []
+    totals = dict.fromkeys(trees, 0.0)
+    for spec in sweeps:
+        per_tree = {name: [] for name in trees}
+        for overrides in spec["runs"]:
+            key = (spec["preset"], *[o for o in overrides if not o.startswith("seed=")])
+            for name in trees:
+                per_tree[name].append(run_seconds(costs[key, name], spec["iterations"], spec["eval_every"],
+                                                  spec["checkpoint_every"]))
+        for key in dict.fromkeys((spec["preset"], *[o for o in r if not o.startswith("seed=")]) for r in spec["runs"]):
+            for name in trees:
+                cost = costs[key, name]
+                rows.append({"preset": spec["preset"], "run": " ".join(key[1:]) or "(preset)", "revision": name,
+                             "ms/iteration": cost["ms_per_iteration"], "eval s": cost["eval_s"],
+                             "checkpoint s": cost["checkpoint_s"], "fixed s": cost["fixed_s"],
+                             "run s": run_seconds(cost, spec["iterations"], spec["eval_every"],
+                                                  spec["checkpoint_every"])})
+        for name in trees:
+            wall = makespan(per_tree[name], processes)
+            totals[name] += wall
+            rows.append({"preset": spec["preset"], "run": f"sweep: {len(spec['runs'])} runs x {spec['iterations']} "
+                         f"iterations, {processes} at a time", "revision": name, "run s": wall})
+    for name, total in totals.items():
+        rows.append({"preset": "reproduce.sh full", "run": f"total ({total / 3600:.2f} h)", "revision": name,
+                     "run s": total})
+    return rows
+
+
+def format_rows(rows: list[dict[str, Any]]) -> str:
+    from sidewalk.bench.common import format_table
+
+    table = format_table(rows, ("preset", "run", "revision", "ms/iteration", "eval s", "checkpoint s", "fixed s",
+                                "run s"))
+    totals = [row for row in rows if row["preset"] == "reproduce.sh full"]
+    if len(totals) == 2:
+        ratio = totals[1]["run s"] / totals[0]["run s"]
+        table += f"\nthis checkout ÷ {totals[0]['revision']}: {ratio:.2f} of the estimated wall-clock"
+    return table
+
+
+def parse_options(argv: Sequence[str]) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(prog="runners/bench.py reproduce", description=__doc__.splitlines()[0])
+    parser.add_argument("--baseline", help="another revision (commit, tag, branch) probed beside this checkout")
+    parser.add_argument("--processes", type=int, default=2, help="runs at a time (Hydra joblib n_jobs)")
+    parser.add_argument("--probes-at-once", type=int, help="probes run side by side (default: --processes)")
+    parser.add_argument("--probe-iterations", type=int, default=PROBE_ITERATIONS)
+    parser.add_argument("--probe-period", type=int, default=PROBE_PERIOD,
+                        help="iterations between the probe's evaluations and checkpoints")
+    args, _ = parser.parse_known_args(argv)
+    for flag in ("processes", "probes_at_once"):
+        value = getattr(args, flag)
+        if value is not None and value < 1:
+            parser.error(f"--{flag.replace('_', '-')} {value}: must be at least 1")
+    if args.baseline is not None:
+        found = subprocess.run(["git", "rev-parse", "--verify", "--quiet", f"{args.baseline}^{{commit}}"], cwd=ROOT,
+                               capture_output=True, text=True)
+        if found.returncode != 0:
+            parser.error(f"--baseline {args.baseline}: not a commit of this repository")
+    return vars(args)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    options = parse_options(sys.argv[1:] if argv is None else argv)
+    print(format_rows(run(**options)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
