@@ -63,3 +63,55 @@ def test_sb3_adapter_resets_finished_worlds_in_the_same_step():
 
     td = sb3_greedy_policy(model)(TensorDict({"observation": torch.as_tensor(first)}, batch_size=[4]))
     assert td["action"].shape == (4,) and td["action"].dtype == torch.int64
+
+
+def test_the_criterion_is_three_evaluations_in_a_row_with_evaluation_time_taken_out():
+    from sidewalk.bench.training import CONFIRM, TARGET, _Clock
+
+    assert (TARGET, CONFIRM) == (0.9, 2)
+    clock = _Clock(TARGET, seconds=1e9, eval_every_frames=100, confirm=CONFIRM)
+    clock.start = 0.0
+    # (success, eval start, eval end): each evaluation takes 1 s after 10 s of training.
+    evaluations = [(0.95, 10, 11), (0.2, 21, 22), (0.9, 32, 33), (0.91, 43, 44), (1.0, 54, 55)]
+    stops = [clock.on_eval(success, start, end) for success, start, end in evaluations]
+    assert stops == [False, False, False, False, True]
+    row = clock.row()
+    # The criterion is met at the fifth evaluation: 50 s of training (4 s of evaluation taken out), 500 frames.
+    assert row["met"] and row["seconds_to_criterion"] == 50 and row["frames_to_criterion"] == 500
+    assert row["seconds_with_eval"] == 54 and row["seconds_first"] == 10
+
+
+def test_a_run_that_misses_the_criterion_stops_at_its_cap_and_says_so():
+    from sidewalk.bench.training import _Clock, _median
+
+    clock = _Clock(0.9, seconds=30, eval_every_frames=100, confirm=2)
+    clock.start = 0.0
+    assert not clock.on_eval(0.95, 10, 10) and not clock.on_eval(0.95, 20, 20)
+    assert clock.on_eval(0.5, 30, 30)  # the cap, not the criterion
+    missed = clock.row()
+    assert not missed["met"] and "seconds_to_criterion" not in missed and "no 3 evaluations" in missed["note"]
+    met = {"met": True, "seconds_to_criterion": 10.0, "train_seconds": 10.0, "best_success": 1.0}
+    base = {"threads": 1, "measure": "time_to_criterion", "setup": "equal", "learner": "ours", "num_envs": 128,
+            "settings": ""}
+    median = _median([{**base, **met}, {**base, **met, "seconds_to_criterion": 20.0}, {**base, **missed}])
+    assert (median["seconds_to_criterion"], median["min_s"], median["max_s"]) == (20.0, 10.0, 30.0)
+    assert median["met"] == "2/3" and "1/3 seeds did not meet" in median["note"]
+
+
+def test_equal_settings_give_our_dqn_sb3s_network():
+    """At the equal setup our Q-network (no dueling head) has the parameter shapes of SB3's CnnPolicy Q-network with
+    the paper's extractor; at the defaults it has the dueling head's two streams."""
+    from sidewalk.algos.dqn import DQN
+    from sidewalk.bench.common import compose_experiment
+    from sidewalk.bench.training import BASE_OVERRIDES, EQUAL_NETWORK, make_sb3_dqn, sb3_settings
+    from sidewalk.experiment import make_view
+
+    def our_shapes(*overrides):
+        experiment = compose_experiment([*BASE_OVERRIDES, *overrides])
+        algo = DQN(experiment.algo, make_view(experiment, 2, 0))
+        return [tuple(p.shape) for p in algo.actor.parameters()]
+
+    sb3 = make_sb3_dqn({**sb3_settings(2), "buffer_size": 10}, total_frames=1000, seed=0)
+    assert our_shapes(*EQUAL_NETWORK) == [tuple(p.shape) for p in sb3.policy.q_net.parameters()]
+    dueling = our_shapes()
+    assert len(dueling) == len(our_shapes(*EQUAL_NETWORK)) + 4  # value and advantage streams of two layers each
