@@ -100,6 +100,18 @@ class ExperimentSchema:
     torch_threads: int = 1
 
 
+def with_schema_defaults(cfg: DictConfig) -> DictConfig:
+    """A run folder's saved config with every key it lacks filled from today's schemas (top level, algorithm,
+    logger): a folder written before a key existed (``keep_checkpoint``, ``algo.dueling``) reads as the run it was,
+    since a new key's default keeps the old behaviour. The algorithm and logger sections come back typed."""
+    from sidewalk.algos import ALGORITHMS
+
+    cfg = OmegaConf.merge(OmegaConf.structured(ExperimentSchema), cfg)
+    cfg.algo = OmegaConf.merge(OmegaConf.structured(ALGORITHMS[cfg.algo.name].Config), cfg.algo)
+    cfg.logger = OmegaConf.merge(OmegaConf.structured(LoggerSchema), cfg.logger)
+    return cfg
+
+
 def register_schemas() -> None:
     """Put the schemas in Hydra's ConfigStore (idempotent)."""
     from sidewalk.algos.dqn import DQNConfig

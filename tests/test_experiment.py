@@ -225,3 +225,27 @@ def test_submitit_local_sweep(tmp_path):
             timeout=600)
     summaries = sorted(sweep.rglob("summary.json"))
     assert [json.loads(p.read_text())["seed"] for p in summaries] == [0, 1]
+
+
+def test_resume_reads_keys_added_since_the_folder_was_written_at_their_defaults(tmp_path):
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from sidewalk import run_folder
+    from sidewalk.config import register_schemas
+
+    register_schemas()
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        config = OmegaConf.to_container(compose(config_name="config", overrides=["resume=true"]), resolve=True)
+    # A folder written before these keys existed: the behaviour it ran with is their default.
+    old = {**config, "algo": dict(config["algo"])}
+    for key in ("dueling", "default_iterations", "default_eval_every"):
+        del old["algo"][key]
+    del old["keep_checkpoint"]
+    OmegaConf.save(OmegaConf.create(old), tmp_path / run_folder.CONFIG)
+    (tmp_path / run_folder.CHECKPOINT).write_bytes(b"")
+    assert run_folder.check(tmp_path, config, resume=True) is None
+    # Asking for other than the default of a key the folder lacks is another experiment.
+    plain = {**config, "algo": {**config["algo"], "dueling": False}}
+    with pytest.raises(run_folder.RunFolderError, match=r"algo.dueling: True -> False"):
+        run_folder.check(tmp_path, plain, resume=True)

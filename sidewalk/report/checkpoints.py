@@ -23,16 +23,12 @@ def load_experiment(run_dir: str | Path, device: str = "cpu"):
     config dataclasses, exactly as ``runners/main.py`` built them; the top level is merged onto the experiment
     schema, so a folder written before a key existed (``keep_checkpoint``) replays with that key's default.
     """
-    from sidewalk.algos import ALGORITHMS
-    from sidewalk.config import ExperimentSchema, LoggerSchema, validate
+    from sidewalk.config import validate, with_schema_defaults
 
     path = Path(run_dir) / CONFIG
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist: {run_dir} is not a run folder")
-    cfg = OmegaConf.merge(OmegaConf.structured(ExperimentSchema), OmegaConf.load(path))
-    cfg.algo = OmegaConf.merge(OmegaConf.structured(ALGORITHMS[cfg.algo.name].Config), cfg.algo)
-    cfg.logger = OmegaConf.merge(OmegaConf.structured(LoggerSchema), cfg.logger)
-    return dataclasses.replace(validate(cfg), device=device)
+    return dataclasses.replace(validate(with_schema_defaults(OmegaConf.load(path))), device=device)
 
 
 def load_policy(run_dir: str | Path, experiment, env):
