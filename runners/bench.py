@@ -3,7 +3,7 @@
     python runners/bench.py                    # the env, planning and views sections
     python runners/bench.py env --num-envs 4096 --threads 1
     python runners/bench.py planning views
-    python runners/bench.py training           # ~30 min: time to 3 evaluations >= 0.9, ours vs Stable-Baselines3 DQN
+    python runners/bench.py training           # ~1 h: time to 3 evaluations >= 0.9, ours vs Stable-Baselines3 DQN
     python runners/bench.py learners --opponent prm    # hours: our TRPO/PPO vs sb3-contrib TRPO / SB3 PPO
     python runners/bench.py geometry           # ~6 min: what the continuous geometry allows (untrained success, ...)
     python runners/bench.py budget --baseline f082f2a   # ~6 min: per-iteration time budget, beside a revision
