@@ -34,9 +34,10 @@ from typing import Any
 
 import pandas as pd
 
+from sidewalk.bench.common import REPO_ROOT as ROOT
+from sidewalk.bench.common import is_commit, revision_trees
 from sidewalk.bench.probes import OUTSIDE
 
-ROOT = Path(__file__).resolve().parents[2]
 PROBES_SCRIPT = Path(__file__).with_name("probes.py")
 RUNS: dict[str, tuple[str, ...]] = {
     "dqn": (),  # the default run: python runners/main.py
@@ -84,11 +85,8 @@ def parse_options(argv: Sequence[str]) -> dict[str, Any]:
         parser.error(f"--trpo-iterations={args.trpo_iterations} must be ≥ 1")
     if any(seed < 0 for seed in args.seeds):
         parser.error(f"--seeds {args.seeds}: seeds must be ≥ 0")
-    if args.baseline is not None:
-        check = subprocess.run(["git", "rev-parse", "--verify", "--quiet", f"{args.baseline}^{{commit}}"],
-                               cwd=ROOT, capture_output=True, text=True)
-        if check.returncode != 0:
-            parser.error(f"--baseline={args.baseline!r} is not a commit of {ROOT}")
+    if args.baseline is not None and not is_commit(args.baseline):
+        parser.error(f"--baseline={args.baseline!r} is not a commit of {ROOT}")
     return {"baseline": args.baseline, "runs": args.runs, "seeds": args.seeds,
             "trpo_iterations": args.trpo_iterations}
 
@@ -101,7 +99,7 @@ def _time_run(tree: Path, overrides: list[str], workdir: Path) -> dict[str, Any]
     started = time.perf_counter()
     result = subprocess.run(
         [sys.executable, str(PROBES_SCRIPT), str(out), "--", *overrides, f"hydra.run.dir={run_dir}"],
-        cwd=tree, env=env, capture_output=True, text=True,
+        cwd=tree, env=env, capture_output=True, text=True, check=False,  # a failure is reported below
     )
     wall = time.perf_counter() - started
     if result.returncode != 0 or not out.exists():
@@ -139,28 +137,18 @@ def _budget_rows(runs: list[dict[str, Any]]) -> dict[str, float]:
 def run(baseline: str | None = None, runs: Sequence[str] = tuple(RUNS), seeds: Sequence[int] = (0,),
         trpo_iterations: int = 50) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory(prefix="sidewalk-budget-") as tmp:
-        trees = {"this checkout": ROOT}
-        if baseline is not None:
-            worktree = Path(tmp) / "baseline"
-            subprocess.run(["git", "worktree", "add", "--detach", "--quiet", str(worktree), baseline],
-                           cwd=ROOT, check=True)
-            trees = {f"baseline {baseline}": worktree, "this checkout": ROOT}
-        try:
-            for run_name in runs:
-                overrides = list(RUNS[run_name])
-                if run_name == "trpo":
-                    overrides.append(f"iterations={trpo_iterations}")
-                timed: dict[str, list[dict[str, Any]]] = {name: [] for name in trees}
-                for seed in seeds:
-                    for name, tree in trees.items():
-                        workdir = Path(tmp) / f"{run_name}-{seed}-{len(timed[name])}-{name.split()[0]}"
-                        print(f"budget: {run_name} seed {seed} on {name} ...", file=sys.stderr, flush=True)
-                        timed[name].append(_time_run(tree, [*overrides, f"seed={seed}"], workdir))
-                rows.append({"run": run_name, "overrides": " ".join(overrides) or "(defaults)", "timed": timed})
-        finally:
-            if baseline is not None:
-                subprocess.run(["git", "worktree", "remove", "--force", str(worktree)], cwd=ROOT, check=False)
+    with tempfile.TemporaryDirectory(prefix="sidewalk-budget-") as tmp, revision_trees(baseline, tmp) as trees:
+        for run_name in runs:
+            overrides = list(RUNS[run_name])
+            if run_name == "trpo":
+                overrides.append(f"iterations={trpo_iterations}")
+            timed: dict[str, list[dict[str, Any]]] = {name: [] for name in trees}
+            for seed in seeds:
+                for name, tree in trees.items():
+                    workdir = Path(tmp) / f"{run_name}-{seed}-{len(timed[name])}-{name.split()[0]}"
+                    print(f"budget: {run_name} seed {seed} on {name} ...", file=sys.stderr, flush=True)
+                    timed[name].append(_time_run(tree, [*overrides, f"seed={seed}"], workdir))
+            rows.append({"run": run_name, "overrides": " ".join(overrides) or "(defaults)", "timed": timed})
     return rows
 
 

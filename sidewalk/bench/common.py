@@ -3,8 +3,9 @@ Stable-Baselines3 adapter of the gymnasium face."""
 
 from __future__ import annotations
 
+import subprocess
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -14,7 +15,8 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase
 
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+REPO_ROOT = Path(__file__).resolve().parents[2]
+CONF_DIR = REPO_ROOT / "conf"
 
 
 @contextmanager
@@ -26,6 +28,29 @@ def torch_threads(n: int):
         yield
     finally:
         torch.set_num_threads(previous)
+
+
+def is_commit(revision: str) -> bool:
+    """Whether ``revision`` names a commit of this repository."""
+    found = subprocess.run(["git", "rev-parse", "--verify", "--quiet", f"{revision}^{{commit}}"], cwd=REPO_ROOT,
+                           capture_output=True, text=True, check=False)
+    return found.returncode == 0
+
+
+@contextmanager
+def revision_trees(baseline: str | None, tmp: str | Path) -> Iterator[dict[str, Path]]:
+    """``{"baseline REV": a git worktree of REV under tmp, "this checkout": REPO_ROOT}`` (only this checkout without
+    a baseline), the worktree removed afterwards: the benchmarks that time two revisions side by side."""
+    if baseline is None:
+        yield {"this checkout": REPO_ROOT}
+        return
+    worktree = Path(tmp) / "baseline"
+    subprocess.run(["git", "worktree", "add", "--detach", "--quiet", str(worktree), baseline], cwd=REPO_ROOT,
+                   check=True)
+    try:
+        yield {f"baseline {baseline}": worktree, "this checkout": REPO_ROOT}
+    finally:
+        subprocess.run(["git", "worktree", "remove", "--force", str(worktree)], cwd=REPO_ROOT, check=False)
 
 
 def env_steps_per_s(

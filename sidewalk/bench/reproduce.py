@@ -44,8 +44,9 @@ from typing import Any
 
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parents[2]
-SCRIPT = ROOT / "runners" / "reproduce.sh"
+from sidewalk.bench.common import REPO_ROOT, is_commit, revision_trees
+
+SCRIPT = REPO_ROOT / "runners" / "reproduce.sh"
 WARMUP = 10  # iterations left out of ms/iteration: DQN's first updates start after 1000 frames (8 iterations)
 PROBE_ITERATIONS = 40
 PROBE_PERIOD = 20  # iterations between the probe's evaluations and checkpoints
@@ -78,6 +79,11 @@ def sweep(preset: str) -> dict[str, Any]:
             "checkpoint_every": int(cfg.checkpoint_every)}
 
 
+def _run_key(preset: str, overrides: Sequence[str]) -> tuple[str, ...]:
+    """A run of a preset's sweep without its seed: a seed changes what is learned, not what an iteration costs."""
+    return (preset, *[override for override in overrides if not override.startswith("seed=")])
+
+
 def _probe(tree: Path, overrides: list[str], workdir: Path, iterations: int, period: int) -> dict[str, float]:
     """One short ``runners/main.py`` in ``tree``: its per-iteration, evaluation, checkpoint and fixed costs."""
     run_dir = workdir / "run"
@@ -85,7 +91,7 @@ def _probe(tree: Path, overrides: list[str], workdir: Path, iterations: int, per
                f"checkpoint_every={period}", f"hydra.run.dir={run_dir}"]
     started = time.perf_counter()
     result = subprocess.run(command, cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)},
-                            capture_output=True, text=True)
+                            capture_output=True, text=True, check=False)  # a failure is reported below
     wall = time.perf_counter() - started
     if result.returncode != 0:
         raise RuntimeError(f"{shlex.join(command)} failed in {tree}:\n{result.stderr[-3000:]}")
@@ -134,43 +140,26 @@ def run(baseline: str | None = None, processes: int = 2, probe_iterations: int =
                          f"a period of at least 2 and at least {WARMUP + probe_period + 2} iterations (an evaluation, "
                          f"a checkpoint and steady iterations after {WARMUP} of warm-up)")
     sweeps = [sweep(preset) for preset in presets()]
-    # The distinct runs: overrides without the seed (the probe runs seed 0).
-    distinct = {}
-    for spec in sweeps:
-        for overrides in spec["runs"]:
-            key = (spec["preset"], *[o for o in overrides if not o.startswith("seed=")])
-            distinct[key] = [f"+experiment={spec['preset']}", *key[1:], "seed=0"]
-    with tempfile.TemporaryDirectory(prefix="sidewalk-reproduce-") as tmp:
-        trees = {"this checkout": ROOT}
-        if baseline is not None:
-            worktree = Path(tmp) / "baseline"
-            subprocess.run(["git", "worktree", "add", "--detach", "--quiet", str(worktree), baseline],
-                           cwd=ROOT, check=True)
-            trees = {f"baseline {baseline}": worktree, "this checkout": ROOT}
-        try:
-            jobs = [(key, name, tree) for key in distinct for name, tree in trees.items()]
+    # The distinct runs: a preset's runs without their seeds (the probe runs seed 0).
+    distinct = {_run_key(spec["preset"], overrides): None for spec in sweeps for overrides in spec["runs"]}
+    with tempfile.TemporaryDirectory(prefix="sidewalk-reproduce-") as tmp, revision_trees(baseline, tmp) as trees:
+        jobs = [(key, name, tree) for key in distinct for name, tree in trees.items()]
 
-            def probe(job):
-                key, name, tree = job
-                workdir = Path(tmp) / f"{len(jobs)}-{abs(hash((key, name)))}"
-                print(f"reproduce: probing {' '.join(key)} on {name} ...", file=sys.stderr, flush=True)
-                return _probe(tree, list(distinct[key]), workdir, probe_iterations, probe_period)
+        def probe(numbered_job):
+            number, (key, name, tree) = numbered_job
+            print(f"reproduce: probing {' '.join(key)} on {name} ...", file=sys.stderr, flush=True)
+            overrides = [f"+experiment={key[0]}", *key[1:], "seed=0"]
+            return _probe(tree, overrides, Path(tmp) / f"probe-{number}", probe_iterations, probe_period)
 
-            with ThreadPoolExecutor(max_workers=probes_at_once or processes) as pool:
-                costs = dict(zip(((key, name) for key, name, _ in jobs), pool.map(probe, jobs)))
-        finally:
-            if baseline is not None:
-                subprocess.run(["git", "worktree", "remove", "--force", str(worktree)], cwd=ROOT, check=False)
+        with ThreadPoolExecutor(max_workers=probes_at_once or processes) as pool:
+            costs = dict(zip(((key, name) for key, name, _ in jobs), pool.map(probe, enumerate(jobs))))
     rows: list[dict[str, Any]] = []
     totals = dict.fromkeys(trees, 0.0)
     for spec in sweeps:
-        per_tree = {name: [] for name in trees}
-        for overrides in spec["runs"]:
-            key = (spec["preset"], *[o for o in overrides if not o.startswith("seed=")])
-            for name in trees:
-                per_tree[name].append(run_seconds(costs[key, name], spec["iterations"], spec["eval_every"],
-                                                  spec["checkpoint_every"]))
-        for key in dict.fromkeys((spec["preset"], *[o for o in r if not o.startswith("seed=")]) for r in spec["runs"]):
+        keys = [_run_key(spec["preset"], overrides) for overrides in spec["runs"]]
+        per_tree = {name: [run_seconds(costs[key, name], spec["iterations"], spec["eval_every"],
+                                       spec["checkpoint_every"]) for key in keys] for name in trees}
+        for key in dict.fromkeys(keys):
             for name in trees:
                 cost = costs[key, name]
                 rows.append({"preset": spec["preset"], "run": " ".join(key[1:]) or "(preset)", "revision": name,
@@ -214,11 +203,8 @@ def parse_options(argv: Sequence[str]) -> dict[str, Any]:
         value = getattr(args, flag)
         if value is not None and value < 1:
             parser.error(f"--{flag.replace('_', '-')} {value}: must be at least 1")
-    if args.baseline is not None:
-        found = subprocess.run(["git", "rev-parse", "--verify", "--quiet", f"{args.baseline}^{{commit}}"], cwd=ROOT,
-                               capture_output=True, text=True)
-        if found.returncode != 0:
-            parser.error(f"--baseline {args.baseline}: not a commit of this repository")
+    if args.baseline is not None and not is_commit(args.baseline):
+        parser.error(f"--baseline {args.baseline}: not a commit of this repository")
     return vars(args)
 
 
