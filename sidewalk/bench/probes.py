@@ -22,7 +22,8 @@ import runpy
 import sys
 import time
 from collections import defaultdict
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 if __name__ == "__main__":  # run by path: this folder's modules (envs.py, views.py, ...) must not shadow others
     sys.path = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirname(os.path.abspath(__file__))]
