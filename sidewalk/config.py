@@ -18,10 +18,10 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 
 from sidewalk._checks import check_choice, check_int, check_keys, check_range
 from sidewalk.algos.base import AlgoConfig
-from sidewalk.envs.grid import DiscreteParams
-from sidewalk.envs.layouts import grid_layout, plane_layout
+from sidewalk.envs.grid import DiscreteParams, DiscreteSidewalkEnv
 from sidewalk.envs.rewards import RewardParams
-from sidewalk.envs.unicycle import ContinuousParams
+from sidewalk.envs.unicycle import ContinuousParams, ContinuousSidewalkEnv
+from sidewalk.views import MAX_JOINT_ACTIONS
 
 DOMAINS = ("discrete", "continuous")
 OPPONENT_DOMAINS = {"random": DOMAINS, "dijkstra": ("discrete",), "prm": ("continuous",), "centralized": DOMAINS}
@@ -228,11 +228,14 @@ def validate(cfg: DictConfig) -> Experiment:
                 f"the paper's conv stack needs at least {side} px per side: raise env.pixels_per_cell or use "
                 "env.observation=vector"
             )
-    if domain == "discrete":
-        n_agents = grid_layout(env_params.layout, env_params.width_cells, env_params.length_cells).n_agents
-    else:
-        n_agents = plane_layout(env_params.layout, env_params.length_m, env_params.width_m).n_agents
+    env_cls = DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
+    n_agents = env_cls.layout_for(env_params).n_agents  # raises on a scenario that cannot hold its agents
     rewards.shaping_mask(n_agents, device="cpu")  # raises on agents the layout does not have
+    if opponent == "centralized" and domain == "discrete" and 4**n_agents > MAX_JOINT_ACTIONS:
+        raise ValueError(
+            f"opponent=centralized plays {n_agents} grid agents through 4**{n_agents} = {4**n_agents} joint actions, "
+            f"more than the limit {MAX_JOINT_ACTIONS} (5 agents); use fewer agents (env.n_agents) or a scripted opponent"
+        )
     ego = cfg.opponent.ego
     check_int("opponent.ego", ego, 0, n_agents - 1)
     algo_cls = ALGORITHMS[algo_name].Config

@@ -2,8 +2,9 @@
 
 Metric names (every tool reads these keys): ``success_rate``, ``collision_rate`` (any), ``agent_collision_rate``,
 ``wall_collision_rate``, ``timeout_rate``, ``return``, ``episode_length``, ``path_efficiency``,
-``min_separation``; per agent as ``agent0/success_rate``...; in an ego view also ``ego/...`` and ``other/...``;
-and ``team/success_rate`` (every agent reached its goal).
+``min_separation``, ``wait_steps``; per agent as ``agent0/success_rate``...; in an ego view also ``ego/...`` and
+``other/...``; and for the whole team ``team/success_rate`` (every agent reached its goal), ``makespan`` and
+``deadlock_rate``.
 
 Definitions: rates are fractions of episodes (per agent, or of agent-episodes for the overall figure); ``return``
 is an agent's undiscounted episode return (its own reward, cooperative term included); ``episode_length`` is
@@ -11,7 +12,15 @@ the world's episode length in steps (per agent: steps until that agent was done)
 shortest distance from start to goal over the distance travelled, over agents that reached their goal (grid:
 Manhattan cells, the shortest grid path; continuous: metres to the edge of the goal radius); ``min_separation`` is the smallest distance
 between two agents in the world during the episode (grid: cells, Euclidean; continuous: centre to centre, m),
-averaged over episodes, counting only agents still in the world.
+averaged over episodes, counting only agents present in the world (``("world", "present")``).
+
+The scenarios' coordination metrics (paper §7): ``makespan`` is the steps until the last agent arrived, over
+episodes where every agent did (NaN if none did); ``deadlock_rate`` the fraction of episodes that timed out while no
+unfinished agent moved more than ``DEADLOCK_CELLS`` cell (grid, Manhattan) / ``DEADLOCK_M`` m (continuous) from
+where it ended, over its last ``DEADLOCK_WINDOW`` steps -- agents stuck, or stepping back and forth, in front of
+each other; ``wait_steps`` the steps an agent stood still before it was done, where standing still means ending a
+step where it was two steps before (grid: the same cell -- the grid has no stay action, so an agent waits by
+stepping aside and back; continuous: within ``WAIT_M`` m).
 """
 
 from __future__ import annotations
@@ -27,6 +36,11 @@ from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from sidewalk.envs.base import INFO_KEYS
+
+DEADLOCK_WINDOW = 30  # steps
+DEADLOCK_CELLS = 1
+DEADLOCK_M = 0.5
+WAIT_M = 0.1
 
 RATE_OF = {
     "success_rate": "reached_goal",
@@ -47,6 +61,8 @@ class EpisodeRecord:
     travelled: np.ndarray
     shortest: np.ndarray
     min_separation: np.ndarray  # (episodes,), inf with a single agent
+    wait_steps: np.ndarray | None = None  # (episodes, N)
+    deadlocked: np.ndarray | None = None  # (episodes,) bool
     trajectories: np.ndarray | None = None  # (T, k, N, 2) positions of the first k worlds, NaN once finished
     ego: int | None = None
     extras: dict = field(default_factory=dict)
@@ -93,9 +109,16 @@ def run_episodes(
     previous = start
     trajectory = [start[:record_trajectories].cpu().numpy()] if record_trajectories else []
     pair = ~torch.eye(n_agents, dtype=torch.bool, device=device)
+    # The last DEADLOCK_WINDOW positions, as a ring, and the positions one and two steps back (waiting).
+    window = min(DEADLOCK_WINDOW, core.params.max_steps)
+    recent = start.unsqueeze(0).repeat(window, 1, 1, 1)
+    two_back = start
+    wait_steps = torch.zeros(n_worlds, n_agents, device=device)
+    deadlocked = torch.zeros(n_worlds, dtype=torch.bool, device=device)
+    still_within, stood_within = (DEADLOCK_CELLS, 0.0) if grid else (DEADLOCK_M, WAIT_M)
 
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        for _ in range(core.params.max_steps + 1):
+        for step in range(core.params.max_steps + 1):
             if policy is None:
                 td = env.rand_action(td)
             else:
@@ -111,9 +134,12 @@ def run_episodes(
             returns += world.get("reward").squeeze(-1) * live
             travelled += moved * live
             info = {key: world.get(("info", key)).squeeze(-1) for key in INFO_KEYS}
-            in_world = ~(info["collided_agent"] | info["collided_wall"])
+            in_world = world.get("present").squeeze(-1)
             agent_length += (was_active & live).float()
             world_length += running.float()
+            stood = _distance(now, two_back, grid) <= stood_within
+            wait_steps += (stood & was_active & live & ~info["reached_goal"]).float()
+            two_back, recent[step % window] = previous, now
             if n_agents > 1:
                 gaps = torch.cdist(now, now)
                 both = in_world.unsqueeze(-1) & in_world.unsqueeze(-2) & pair
@@ -126,6 +152,13 @@ def run_episodes(
                 frame[finished[:record_trajectories]] = float("nan")
                 trajectory.append(frame.cpu().numpy())
             previous = now
+            ending = running & nxt.get("done").squeeze(-1)
+            if bool(ending.any()):
+                # Deadlocked: the world timed out while every unfinished agent stayed near where it ended.
+                timed_out = info["timed_out"]
+                spread = _distance(recent, now.unsqueeze(0), grid).amax(0)  # (B, N)
+                stuck = ((spread <= still_within) | ~timed_out).all(-1) & timed_out.any(-1)
+                deadlocked |= ending & stuck & (step + 1 >= window)
             finished = finished | nxt.get("done").squeeze(-1)
             if bool(finished.all()):
                 break
@@ -139,9 +172,16 @@ def run_episodes(
         travelled=travelled.cpu().numpy(),
         shortest=shortest.cpu().numpy(),
         min_separation=min_separation.cpu().numpy(),
+        wait_steps=wait_steps.cpu().numpy(),
+        deadlocked=deadlocked.cpu().numpy(),
         trajectories=np.stack(trajectory) if record_trajectories else None,
         ego=getattr(env, "ego", None),
     )
+
+
+def _distance(a: torch.Tensor, b: torch.Tensor, grid: bool) -> torch.Tensor:
+    """Manhattan cells in the grid, metres in the continuous world, over the last axis (x, y)."""
+    return (a - b).abs().sum(-1) if grid else (a - b).norm(dim=-1)
 
 
 def act_on_distinct(policy: TensorDictModuleBase, td: TensorDictBase, running: torch.Tensor) -> TensorDictBase:
@@ -190,6 +230,8 @@ def _group_metrics(record: EpisodeRecord, agents: list[int]) -> dict[str, float]
     reached = record.info["reached_goal"][:, agents]
     efficiency = record.shortest[:, agents] / np.maximum(record.travelled[:, agents], 1e-9)
     out["path_efficiency"] = float(efficiency[reached].mean()) if reached.any() else float("nan")
+    if record.wait_steps is not None:
+        out["wait_steps"] = float(record.wait_steps[:, agents].mean())
     return out
 
 
@@ -201,7 +243,11 @@ def summarize(record: EpisodeRecord) -> dict[str, float]:
     metrics["episode_length"] = float(record.world_length.mean())
     finite = record.min_separation[np.isfinite(record.min_separation)]
     metrics["min_separation"] = float(finite.mean()) if finite.size else float("nan")
-    metrics["team/success_rate"] = float(record.info["reached_goal"].all(1).mean())
+    team_success = record.info["reached_goal"].all(1)
+    metrics["team/success_rate"] = float(team_success.mean())
+    metrics["makespan"] = float(record.agent_length[team_success].max(1).mean()) if team_success.any() else float("nan")
+    if record.deadlocked is not None:
+        metrics["deadlock_rate"] = float(record.deadlocked.mean())
     metrics["episodes"] = float(record.returns.shape[0])
     for agent in range(n_agents):
         for name, value in _group_metrics(record, [agent]).items():
@@ -209,6 +255,8 @@ def summarize(record: EpisodeRecord) -> dict[str, float]:
     if record.ego is not None:
         others = [a for a in range(n_agents) if a != record.ego]
         for prefix, agents in (("ego", [record.ego]), ("other", others)):
+            if not agents:  # a scenario of one agent has no other
+                continue
             for name, value in _group_metrics(record, agents).items():
                 metrics[f"{prefix}/{name}"] = value
     return metrics

@@ -12,6 +12,7 @@ operations for all B worlds, and the specs are built once. They carry the same `
 and plots (every agent, in agent order, batch shape (B, N)):
 
 - ``("world", "state")`` / ``("world", "goal")``: the true state and goal of every agent (no observation noise);
+- ``("world", "present")``: the agent occupies space (moving, or parked at its goal; not crashed and removed);
 - ``("world", "reward")``: every agent's own reward of the step, (B, N, 1), zero on reset;
 - ``("world", "info", k)`` for ``k`` in ``INFO_KEYS`` (``reached_goal``, ``collided_agent``, ``collided_wall``,
   ``timed_out``): the sticky per-episode outcome flags, (B, N, 1) bool.
@@ -28,6 +29,7 @@ from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModuleBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
@@ -44,8 +46,8 @@ OPPONENTS: dict[str, tuple[str, str]] = {
     "dijkstra": ("sidewalk.opponents.dijkstra", "DijkstraOpponent"),
     "prm": ("sidewalk.opponents.prm", "PRMOpponent"),
 }
-# Beyond this many joint actions a Categorical head is impractical; the all-agents view scales instead.
-MAX_JOINT_ACTIONS = 4**8
+# Beyond this many joint actions (5 grid agents) a Categorical head is impractical; the all-agents view scales.
+MAX_JOINT_ACTIONS = 4**5
 
 
 def opponent_class(name: str) -> type[Opponent]:
@@ -131,6 +133,7 @@ class _SidewalkView(EnvBase):
         return Composite(
             state=core_agents["state"].clone(),
             goal=core_agents["goal"].clone(),
+            present=core_agents["present"].clone(),
             reward=self.core.full_reward_spec[AGENT_GROUP, "reward"].clone(),
             info=core_agents["info"].clone(),
             shape=self._agents_shape,
@@ -198,6 +201,7 @@ class _SidewalkView(EnvBase):
             {
                 "state": agents.get("state"),
                 "goal": agents.get("goal"),
+                "present": agents.get("present"),
                 "reward": reward,
                 "info": agents.get("info"),
             },
@@ -417,6 +421,50 @@ class CentralizedView(_SidewalkView):
         if not reset:
             out.set("reward", reward.sum(1))
         return out
+
+
+class ScriptedTeam(TensorDictModuleBase):
+    """One scripted opponent playing every agent as one team, seen as an ego view and a policy of it.
+
+    ``ScriptedTeam(env, name)`` builds the opponent registered as ``name`` controlling every agent (the ego first),
+    ``team.view`` is an ``EgoView`` of ``env`` and ``team`` itself is the policy of its ego: evaluation treats the
+    team like a learner with its partners (``sidewalk.evaluate``). Each step plans all agents at once -- the
+    policy plans, the view's opponent replays the plan for the others -- so a planner that coordinates the agents
+    it controls (Dijkstra's moves in agent order) coordinates the whole team. The scenarios' scripted baselines
+    (``runners/baselines.py``) use it.
+    """
+
+    def __init__(self, env: SidewalkEnvBase, name: str, ego: int = 0, **kwargs: Any) -> None:
+        super().__init__()
+        check_int("ego", ego, 0, env.n_agents - 1)
+        others = tuple(agent for agent in range(env.n_agents) if agent != ego)
+        self.planner = make_opponent(name, env, controlled=(ego, *others), ego=None, **kwargs)
+        self.in_keys = [(WORLD, "state"), (WORLD, "goal"), (WORLD, "present"), (WORLD, "info")]
+        self.out_keys = ["action"]
+        self._planned: torch.Tensor | None = None
+        self.view = EgoView(env, _PlannedOthers(self, env, others, ego), ego=ego)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        world = tensordict.get(WORLD)
+        info = world.get("info")
+        done = info.get("reached_goal") | info.get("collided_agent") | info.get("collided_wall") | info.get("timed_out")
+        self._planned = self.planner.act(world.get("state"), world.get("goal"), done, world.get("present"))
+        tensordict.set("action", self._planned.select(1, 0))
+        return tensordict
+
+
+class _PlannedOthers(Opponent):
+    """The other agents' share of the ``ScriptedTeam``'s last plan."""
+
+    def __init__(self, team: ScriptedTeam, env: SidewalkEnvBase, others: tuple[int, ...], ego: int) -> None:
+        super().__init__(env, controlled=others, ego=ego)
+        self._team = [team]  # a list: not a registered submodule (the team holds this opponent already)
+
+    def act(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
+        planned = self._team[0]._planned
+        if planned is None:
+            raise RuntimeError("ScriptedTeam: the view stepped before its policy planned")
+        return planned[:, 1:]
 
 
 def make_view(

@@ -2,7 +2,8 @@
 
 A subclass supplies the dynamics through four hooks, VMAS-style:
 
-- ``_init_world()``: allocate the world's state tensors for ``self.batch_size`` worlds;
+- ``_init_world()``: allocate the world's state tensors for ``self.batch_size`` worlds, among them ``_present``
+  (B, N) bool, which the base publishes as ``("agents", "present")``;
 - ``_reset_world(reset)``: put the worlds selected by the bool mask ``reset`` (B, N) -- all of a world's agents
   alike -- back at their start;
 - ``_advance(action, active)``: move the agents one step and report, per agent (B, N), who reached its goal,
@@ -63,7 +64,8 @@ class SidewalkEnvBase(EnvBase):
     """A batch of ``num_envs`` Sidewalk worlds as one multi-agent TorchRL environment.
 
     Keys follow TorchRL's multi-agent layout: the group ``"agents"`` (batch shape (B, N)) holds
-    ``observation``, ``state`` (the true state, before observation noise), ``goal``, ``action``, ``reward``,
+    ``observation``, ``state`` (the true state, before observation noise), ``goal``, ``present`` (the agent
+    occupies space in the world: moving, or parked at its goal; not crashed and removed), ``action``, ``reward``,
     per-agent ``done``/``terminated``/``truncated`` and ``info`` (sticky per-episode outcome flags
     ``reached_goal``, ``collided_agent``, ``collided_wall``, ``timed_out``); the root holds the global
     ``done``/``terminated``/``truncated`` (shape (B, 1)).
@@ -145,8 +147,9 @@ class SidewalkEnvBase(EnvBase):
             return Categorical(2, shape=(*shape, 1), dtype=torch.bool, device=self.device)
 
         info = Composite({key: flag(agents) for key in INFO_KEYS}, shape=agents, device=self.device)
+        agent_specs = {**observation_specs, "present": flag(agents), "info": info}
         self.observation_spec = Composite(
-            {AGENT_GROUP: Composite({**observation_specs, "info": info}, shape=agents, device=self.device)},
+            {AGENT_GROUP: Composite(agent_specs, shape=agents, device=self.device)},
             shape=batch,
             device=self.device,
         )
@@ -248,6 +251,7 @@ class SidewalkEnvBase(EnvBase):
             self._status["timed_out"] = self._status["timed_out"] | truncated
         world_truncated = timeout & ~all_terminated
         entries = self._observe(reset)
+        entries["present"] = self._present.unsqueeze(-1)
         entries["info"] = TensorDict._new_unsafe(
             {key: value.unsqueeze(-1) for key, value in self._status.items()}, batch_size=agents_shape
         )

@@ -11,7 +11,7 @@ from torchrl.data import Bounded, Categorical
 
 from sidewalk._checks import check_choice, check_int, check_range
 from sidewalk.envs.base import SidewalkEnvBase
-from sidewalk.envs.layouts import GridLayout, grid_layout
+from sidewalk.envs.layouts import GridLayout, RandomGridLayout, grid_layout
 from sidewalk.envs.rewards import RewardParams
 
 # (d_row, d_col) of UP, DOWN, LEFT, RIGHT; rows run across the sidewalk, columns along it.
@@ -38,7 +38,9 @@ def role_values(n_agents: int) -> tuple[list[int], list[int]]:
 class DiscreteParams:
     """Parameters of the discrete Sidewalk, with SPEC defaults (7 × 15 grid, 2 px per cell, 300-step timeout)."""
 
-    layout: str = "sidewalk"
+    layout: str = "sidewalk"  # a scenario of sidewalk.envs.layouts.SCENARIOS
+    n_agents: int = 2  # agents in the scenario (sidewalk and zipper: 2)
+    min_start_goal_cells: int = 4  # random layout: least Manhattan distance from an agent's start to its goal
     width_cells: int = 7
     length_cells: int = 15
     noise: float = 0.0  # probability that an agent's action is replaced by a uniformly random one
@@ -49,6 +51,8 @@ class DiscreteParams:
     rewards: RewardParams = field(default_factory=RewardParams)
 
     def __post_init__(self) -> None:
+        check_int("n_agents", self.n_agents, 1, 64)
+        check_int("min_start_goal_cells", self.min_start_goal_cells, 1)
         check_int("width_cells", self.width_cells, 1, 255)
         check_int("length_cells", self.length_cells, 2, 255)
         check_range("noise", self.noise, 0.0, 1.0)
@@ -81,11 +85,15 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
     Params = DiscreteParams
     shaping_weight_name = "c_center"
 
-    def _make_layout(self) -> GridLayout:
-        layout = self.params.layout
-        if isinstance(layout, GridLayout):
-            return layout
-        return grid_layout(layout, self.params.width_cells, self.params.length_cells)
+    @staticmethod
+    def layout_for(p: DiscreteParams) -> GridLayout | RandomGridLayout:
+        """The layout that parameters ``p`` describe (raises on a bad scenario name or agent count)."""
+        if isinstance(p.layout, (GridLayout, RandomGridLayout)):
+            return p.layout
+        return grid_layout(p.layout, p.width_cells, p.length_cells, p.n_agents, p.min_start_goal_cells)
+
+    def _make_layout(self) -> GridLayout | RandomGridLayout:
+        return self.layout_for(self.params)
 
     def _init_world(self) -> None:
         layout, device, n = self.layout, self.device, self.n_agents
@@ -149,16 +157,23 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         return specs, Categorical(len(ACTIONS), shape=agents, dtype=torch.long, device=device)
 
     def _reset_world(self, reset: torch.Tensor) -> None:
-        starts, goals = self.layout.sample(self.num_envs, self._generator)
-        self._row = torch.where(reset, starts[..., 0], self._row)
-        self._col = torch.where(reset, starts[..., 1], self._col)
-        self._goal_row = torch.where(reset, goals[..., 0], self._goal_row)
-        self._goal_col = torch.where(reset, goals[..., 1], self._goal_col)
-        self._present = self._present | reset
-        if self.params.observation == "image" and not self.layout.fixed:
+        if self.layout.fixed:
+            starts, goals = self.layout.sample(self.num_envs, self._generator)
+            self._row = torch.where(reset, starts[..., 0], self._row)
+            self._col = torch.where(reset, starts[..., 1], self._col)
+            self._goal_row = torch.where(reset, goals[..., 0], self._goal_row)
+            self._goal_col = torch.where(reset, goals[..., 1], self._goal_col)
+        else:
+            # A random layout draws only the worlds being reset: with auto-reset, a few worlds a step.
             worlds = reset[:, 0].nonzero().squeeze(-1)
-            goal_cell = self._goal_row[worlds] * self.cols + self._goal_col[worlds]
-            self._backdrop[worlds] = self._paint_backdrop(goal_cell)
+            starts, goals = self.layout.sample(worlds.numel(), self._generator)
+            for name, value in (("_row", starts[..., 0]), ("_col", starts[..., 1]),
+                                ("_goal_row", goals[..., 0]), ("_goal_col", goals[..., 1])):
+                setattr(self, name, getattr(self, name).index_copy(0, worlds, value))
+            if self.params.observation == "image":
+                goal_cell = self._goal_row[worlds] * self.cols + self._goal_col[worlds]
+                self._backdrop[worlds] = self._paint_backdrop(goal_cell)
+        self._present = self._present | reset
 
     def _paint_backdrop(self, goal_cell: torch.Tensor) -> torch.Tensor:
         """Walls and goals of some worlds, as seen by every agent, plus the spare pixel: uint8 (n, N, pixels + 1)."""

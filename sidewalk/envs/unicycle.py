@@ -12,7 +12,7 @@ from torchrl.data import Bounded, Unbounded
 
 from sidewalk._checks import check_int, check_range
 from sidewalk.envs.base import SidewalkEnvBase
-from sidewalk.envs.layouts import PlaneLayout, plane_layout
+from sidewalk.envs.layouts import PlaneLayout, RandomPlaneLayout, plane_layout
 from sidewalk.envs.rewards import RewardParams
 
 STATE_FIELDS = ("x", "y", "v", "theta")
@@ -31,7 +31,9 @@ class ContinuousParams:
     ``length_m=10, width_m=1.5, dt_s=0.1``.
     """
 
-    layout: str = "sidewalk"
+    layout: str = "sidewalk"  # a scenario of sidewalk.envs.layouts.SCENARIOS
+    n_agents: int = 2  # agents in the scenario (sidewalk and zipper: 2)
+    min_start_goal_m: float = 1.5  # random layout: least distance from an agent's start to its goal
     length_m: float = 4.0
     width_m: float = 3.0
     agent_radius_m: float = 0.3
@@ -47,6 +49,8 @@ class ContinuousParams:
     rewards: RewardParams = field(default_factory=RewardParams)
 
     def __post_init__(self) -> None:
+        check_int("n_agents", self.n_agents, 1, 64)
+        check_range("min_start_goal_m", self.min_start_goal_m, 0.0)
         check_range("length_m", self.length_m, 0.0, 1000.0, low_open=True)
         check_range("width_m", self.width_m, 0.0, 1000.0, low_open=True)
         check_range("agent_radius_m", self.agent_radius_m, 0.0, min(self.length_m, self.width_m) / 2, low_open=True)
@@ -81,11 +85,17 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
     Params = ContinuousParams
     shaping_weight_name = "c_potential"
 
-    def _make_layout(self) -> PlaneLayout:
-        layout = self.params.layout
-        if isinstance(layout, PlaneLayout):
-            return layout
-        return plane_layout(layout, self.params.length_m, self.params.width_m)
+    @staticmethod
+    def layout_for(p: ContinuousParams) -> PlaneLayout | RandomPlaneLayout:
+        """The layout that parameters ``p`` describe (raises on a bad scenario name or agent count)."""
+        if isinstance(p.layout, (PlaneLayout, RandomPlaneLayout)):
+            return p.layout
+        return plane_layout(
+            p.layout, p.length_m, p.width_m, p.n_agents, p.agent_radius_m, p.goal_radius_m, p.min_start_goal_m
+        )
+
+    def _make_layout(self) -> PlaneLayout | RandomPlaneLayout:
+        return self.layout_for(self.params)
 
     def _init_world(self) -> None:
         p, device, n = self.params, self.device, self.n_agents
@@ -117,13 +127,22 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         return specs, action
 
     def _reset_world(self, reset: torch.Tensor) -> None:
-        starts, headings, goals = self.layout.sample(self.num_envs, self._generator)
-        self._x = torch.where(reset, starts[..., 0], self._x)
-        self._y = torch.where(reset, starts[..., 1], self._y)
-        self._goal_x = torch.where(reset, goals[..., 0], self._goal_x)
-        self._goal_y = torch.where(reset, goals[..., 1], self._goal_y)
-        wrapped = torch.remainder(headings + math.pi, 2 * math.pi) - math.pi  # layouts may say π; the state is [-π, π)
-        self._heading = torch.where(reset, wrapped, self._heading)
+        if self.layout.fixed:
+            starts, headings, goals = self.layout.sample(self.num_envs, self._generator)
+            self._x = torch.where(reset, starts[..., 0], self._x)
+            self._y = torch.where(reset, starts[..., 1], self._y)
+            self._goal_x = torch.where(reset, goals[..., 0], self._goal_x)
+            self._goal_y = torch.where(reset, goals[..., 1], self._goal_y)
+            wrapped = torch.remainder(headings + math.pi, 2 * math.pi) - math.pi  # layouts may say π; state: [-π, π)
+            self._heading = torch.where(reset, wrapped, self._heading)
+        else:
+            # A random layout draws only the worlds being reset: with auto-reset, a few worlds a step.
+            worlds = reset[:, 0].nonzero().squeeze(-1)
+            starts, headings, goals = self.layout.sample(worlds.numel(), self._generator)
+            wrapped = torch.remainder(headings + math.pi, 2 * math.pi) - math.pi
+            for name, value in (("_x", starts[..., 0]), ("_y", starts[..., 1]), ("_goal_x", goals[..., 0]),
+                                ("_goal_y", goals[..., 1]), ("_heading", wrapped)):
+                setattr(self, name, getattr(self, name).index_copy(0, worlds, value))
         self._speed = self._speed.masked_fill(reset, 0.0)
         self._present = self._present | reset
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Sequence
 
 import torch
@@ -15,6 +16,7 @@ STATE_KEY = (AGENT_GROUP, "state")
 GOAL_KEY = (AGENT_GROUP, "goal")
 DONE_KEY = (AGENT_GROUP, "done")
 ACTION_KEY = (AGENT_GROUP, "action")
+PRESENT_KEY = (AGENT_GROUP, "present")
 
 
 class Opponent(TensorDictModuleBase):
@@ -25,8 +27,9 @@ class Opponent(TensorDictModuleBase):
     ``ego`` names the agent it plays against (the learner), or ``None``. Entries of agents it does not control
     are left as they are, so an opponent can fill in around a learner's action.
 
-    Subclasses implement ``act(state, goal, done)`` returning the controlled agents' actions, shape
-    (B, C) for the grid or (B, C, 2) for the continuous world, and may override ``reset(rows)`` to drop
+    Subclasses implement ``act(state, goal, done, present=None)`` returning the controlled agents' actions, shape
+    (B, C) for the grid or (B, C, 2) for the continuous world (``present`` (B, N, 1): who occupies space, as the
+    env publishes it; ``None`` where a caller has only state, goal and done), and may override ``reset(rows)`` to drop
     per-world memory (a planner's warm start) of the worlds in the bool mask ``rows`` (B,).
     """
 
@@ -51,15 +54,22 @@ class Opponent(TensorDictModuleBase):
         self.in_keys = [STATE_KEY, GOAL_KEY, DONE_KEY]
         self.out_keys = [ACTION_KEY]
         self._controlled_index = torch.tensor(self.controlled, dtype=torch.long, device=env.device)
+        # Opponents written before the env published "present" implement act(state, goal, done): they still work.
+        self._act_takes_present = "present" in inspect.signature(self.act).parameters
 
-    def act(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
+    def act(
+        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
+    ) -> torch.Tensor:
         raise NotImplementedError
 
     def reset(self, rows: torch.Tensor | None = None) -> None:
         """Forget per-world memory of the worlds in ``rows`` (all worlds if ``None``)."""
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = self.act(tensordict.get(STATE_KEY), tensordict.get(GOAL_KEY), tensordict.get(DONE_KEY))
+        inputs = [tensordict.get(STATE_KEY), tensordict.get(GOAL_KEY), tensordict.get(DONE_KEY)]
+        if self._act_takes_present:
+            inputs.append(tensordict.get(PRESENT_KEY, None))
+        action = self.act(*inputs)
         joint = tensordict.get(ACTION_KEY, None)
         if joint is None:
             joint = self.env.full_action_spec[ACTION_KEY].zero()

@@ -111,16 +111,24 @@ class DijkstraOpponent(Opponent):
         # One controlled agent among two avoids just the other one: a slice instead of a reduction.
         self._only_other = 1 - self.controlled[0] if n_agents == 2 and n_controlled == 1 else None
 
-    def act(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
-        return self._plan(state, goal, done)[2].t()
+    def act(
+        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        return self._plan(state, goal, done, present)[2].t()
 
-    def plan(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> GridPlan:
+    def plan(
+        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
+    ) -> GridPlan:
         """Plan every world from the env's ``state`` (B, N, 2), ``goal`` (B, N, 2) and ``done`` (B, N, 1)."""
-        costmap, field, action = self._plan(state, goal, done)
+        costmap, field, action = self._plan(state, goal, done, present)
         return GridPlan(costmap.permute(3, 2, 0, 1), field.permute(3, 2, 0, 1), action.t())
 
     def _plan(
-        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor
+        self,
+        state: torch.Tensor,
+        goal: torch.Tensor,
+        done: torch.Tensor,
+        present: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Costmap and field, each (rows, cols, C, B), and the action (C, B)."""
         rows, cols, padded_cols = self._rows, self._cols, self._padded_cols
@@ -128,7 +136,7 @@ class DijkstraOpponent(Opponent):
         device, controlled = state.device, self._controlled_index
         # Worlds last and contiguous, (N, B): results of broadcasts then come out contiguous too.
         row, col = state[..., 0].t().contiguous(), state[..., 1].t().contiguous()
-        present = self._present(state, goal, done).t().contiguous()
+        present = self._present(state, goal, done, present).t().contiguous()
 
         # Avoidance zones of the present agents, (rows, cols, N, B); each controlled agent avoids the others'.
         near_row = (self._row_index - row).abs() <= self.avoid_radius_cells
@@ -178,7 +186,39 @@ class DijkstraOpponent(Opponent):
         tie_break = (
             TIE_ALONG * (neighbour_col - goal_col).abs() + TIE_ACROSS * (neighbour_row - goal_row).abs()
         )
-        return cost, field, (score.double() + tie_break.double()).argmin(-1)
+        total = score.double() + tie_break.double()
+        if n_controlled > 1:
+            return cost, field, self._claim_in_turn(total, neighbour, agent_cell[controlled], done[:, controlled])
+        return cost, field, total.argmin(-1)
+
+    @staticmethod
+    def _claim_in_turn(
+        total: torch.Tensor, neighbour: torch.Tensor, here: torch.Tensor, done: torch.Tensor
+    ) -> torch.Tensor:
+        """Moves (C, B) of several controlled agents that never run into each other: in agent order, each takes
+        its best move among those that neither enter a cell an earlier agent moves into nor swap cells with one.
+
+        One planner controls them all, so it can give way among them; planned apart, two agents heading for one
+        gap step into it together (the door's three stooges). A move that conflicts is kept only when nothing else
+        is left (it then costs OCCUPIED_SCORE more). ``total`` (C, B, 4) scores, ``neighbour`` (C, B, 4) target cells,
+        ``here`` (C, B) current cells, ``done`` (B, C, 1): done agents claim nothing."""
+        moving = ~done.squeeze(-1).t()  # (C, B)
+        action = torch.empty(total.shape[:2], dtype=torch.long, device=total.device)
+        claimed_to, claimed_from = [], []
+        for agent in range(total.shape[0]):
+            score = total[agent]
+            if claimed_to:
+                to, came_from = torch.stack(claimed_to), torch.stack(claimed_from)  # (k, B)
+                target = neighbour[agent]  # (B, 4)
+                enters = (target.unsqueeze(0) == to.unsqueeze(-1)).any(0)
+                swaps = ((target.unsqueeze(0) == came_from.unsqueeze(-1)) & (to == here[agent]).unsqueeze(-1)).any(0)
+                score = score + OCCUPIED_SCORE * (enters | swaps)
+            action[agent] = score.argmin(-1)
+            chosen = neighbour[agent].gather(-1, action[agent].unsqueeze(-1)).squeeze(-1)
+            # A done agent claims a cell no move can reach (-1): it does not move.
+            claimed_to.append(torch.where(moving[agent], chosen, -1))
+            claimed_from.append(torch.where(moving[agent], here[agent], -1))
+        return action
 
     def _solve(self, cost: torch.Tensor, pin: torch.Tensor) -> torch.Tensor:
         """The distance-to-goal field (rows, cols, C, B) on ``cost``, starting from ``pin`` (0 at the goal, inf
@@ -218,8 +258,13 @@ class DijkstraOpponent(Opponent):
             segments.append(last.narrow(dim, 0, length) + last.narrow(dim, shift, length))
         return segments
 
-    def _present(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
-        """Bool (B, N): the agent is in the world -- not done, done at its goal, or kept after a crash."""
+    def _present(
+        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Bool (B, N): the agent is in the world -- the env's ``("agents", "present")`` (B, N, 1) when given;
+        otherwise inferred: not done, done at its goal, or kept after a crash."""
+        if present is not None:
+            return present.squeeze(-1)
         if not self._remove_crashed:
             return torch.ones(state.shape[:2], dtype=torch.bool, device=state.device)
         return ~done.squeeze(-1) | (state == goal).all(-1)

@@ -298,20 +298,28 @@ class PRMOpponent(Opponent):
 
     # ---- planning -----------------------------------------------------------------------------------------------
 
-    def act(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
-        waypoint = self._plan(state, goal, done)[0]
+    def act(
+        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        waypoint = self._plan(state, goal, done, present)[0]
         return self._steer(state, goal, done, waypoint)
 
-    def plan(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> RoadmapPlan:
+    def plan(
+        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
+    ) -> RoadmapPlan:
         """Plan every world from the env's ``state`` (B, N, 4), ``goal`` (B, N, 2) and ``done`` (B, N, 1)."""
-        waypoint, cost_to_goal, edge_cost, goal_cost = (t.clone() for t in self._plan(state, goal, done))
+        waypoint, cost_to_goal, edge_cost, goal_cost = (t.clone() for t in self._plan(state, goal, done, present))
         return RoadmapPlan(
             waypoint.permute(2, 1, 0), cost_to_goal.permute(2, 1, 0), edge_cost.permute(3, 2, 0, 1),
             goal_cost.permute(2, 1, 0),
         )  # fmt: skip
 
     def _plan(
-        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor
+        self,
+        state: torch.Tensor,
+        goal: torch.Tensor,
+        done: torch.Tensor,
+        present: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """Worlds last: waypoint (2, C, B), cost_to_goal (M, C, B), edge_cost (M, K, C, B), goal_cost (M, C, B)."""
         controlled, radius = self._controlled_index, self.connection_radius_m
@@ -319,7 +327,7 @@ class PRMOpponent(Opponent):
         n_worlds, n_controlled = state.shape[0], len(self.controlled)
         # Worlds last and contiguous, (N, B): results of broadcasts then come out contiguous too.
         agent_x, agent_y = state[..., 0].t().contiguous(), state[..., 1].t().contiguous()
-        present = self._present(state, goal, done).t().contiguous()
+        present = self._present(state, goal, done, present).t().contiguous()
         avoided = self._avoided(state, agent_x, agent_y, present)
         lanes = n_controlled * n_worlds
         node_x, node_y = self._node_x, self._node_y
@@ -554,8 +562,13 @@ class PRMOpponent(Opponent):
         action = torch.stack([accel, turn], dim=-1).transpose(0, 1)  # (B, C, 2)
         return action.masked_fill(done[:, self._controlled_index], 0.0)
 
-    def _present(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
-        """Bool (B, N): the agent is in the world -- not done, done at its goal, or kept after a crash."""
+    def _present(
+        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Bool (B, N): the agent is in the world -- the env's ``("agents", "present")`` (B, N, 1) when given;
+        otherwise inferred: not done, done at its goal, or kept after a crash."""
+        if present is not None:
+            return present.squeeze(-1)
         if not self._params.remove_crashed:
             return torch.ones(state.shape[:2], dtype=torch.bool, device=state.device)
         at_goal = (state[..., :2] - goal).square().sum(-1) <= self._params.goal_radius_m**2

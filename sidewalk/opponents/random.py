@@ -12,7 +12,9 @@ class RandomOpponent(Opponent):
     """Uniform random actions: one of the four moves in the grid, a uniform (acceleration, turn) within the
     bounds in the continuous world. It mostly acts as a moving obstacle."""
 
-    def act(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
+    def act(
+        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
+    ) -> torch.Tensor:
         env, shape = self.env, (state.shape[0], len(self.controlled))
         if env_domain(env) == "discrete":
             return torch.randint(len(ACTIONS), shape, generator=env.generator, device=env.device)

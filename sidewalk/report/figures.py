@@ -26,12 +26,13 @@ from sidewalk.report.conditions import (
     varying_keys,
 )
 from sidewalk.report.runs import POLICY_FILES, SUMMARY, shown_path
-from sidewalk.report.tables import NumberLog, Settings, curve, final_table, finals
+from sidewalk.report.tables import NumberLog, Settings, curve, final_of, final_table, finals
 
 log = logging.getLogger(__name__)
 
 
 CURVE_METRICS = {"success_rate": "success rate", "collision_rate": "collision rate"}
+SCENARIO_METRICS = ("makespan", "deadlock_rate")  # reported for runs in a scenario other than the sidewalk
 COLOURS = ("#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#7f7f7f")
 
 
@@ -418,7 +419,11 @@ def family_sections(
                 ):
                     final_rows.append((condition, name, final))
                     numbers.add_final(f"family:{family}", condition, final)
-            for final in finals(condition, ["team"], "success_rate", settings):
+            team = finals(condition, ["team"], "success_rate", settings)
+            if condition.flat.get("env.layout", "sidewalk") != "sidewalk":
+                # The scenarios' coordination metrics (sidewalk.evaluate): whole-team keys of summary.json.
+                team += [final_of(condition, "team", key, key, settings) for key in SCENARIO_METRICS]
+            for final in team:
                 final_rows.append((condition, "team", final))
                 numbers.add_final(f"family:{family}", condition, final)
         md += ["Final values (`summary.json`):", ""] + final_table(final_rows, settings.confidence) + [""]

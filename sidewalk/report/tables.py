@@ -80,19 +80,17 @@ def summary_values(condition: Condition, key: str) -> np.ndarray:
 
 def finals(condition: Condition, agents: Sequence[str], metric: str, settings: Settings) -> list[Final]:
     """``summary.json`` values of ``<agent>/<metric>`` across seeds, with mean, SE and IQM interval."""
-    out = []
-    for agent in agents:
-        values = summary_values(condition, f"{agent}/{metric}")
-        mean, se, _ = mean_se(values)
-        interval = interval_estimate(
-            values,
-            "iqm",
-            confidence=settings.confidence,
-            n_resamples=settings.n_resamples,
-            seed=settings.seed,
-        )
-        out.append(Final(agent, metric, values, float(mean), float(se), interval))
-    return out
+    return [final_of(condition, agent, metric, f"{agent}/{metric}", settings) for agent in agents]
+
+
+def final_of(condition: Condition, agent: str, metric: str, key: str, settings: Settings) -> Final:
+    """``summary.json``'s ``key`` across seeds as the final value of ``agent``'s ``metric``."""
+    values = summary_values(condition, key)
+    mean, se, _ = mean_se(values)
+    interval = interval_estimate(
+        values, "iqm", confidence=settings.confidence, n_resamples=settings.n_resamples, seed=settings.seed
+    )
+    return Final(agent, metric, values, float(mean), float(se), interval)
 
 
 class NumberLog:

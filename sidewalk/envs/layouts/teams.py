@@ -1,0 +1,46 @@
+"""Scenario ``teams`` (paper Fig. 9): two groups side by side facing each other, goals behind the other group."""
+
+from __future__ import annotations
+
+import math
+
+from sidewalk.envs.layouts.base import TEAM_SPACING_M, GridLayout, PlaneLayout, check_agents, spread
+
+
+def teams_grid(rows: int, cols: int, n_agents: int = 4, min_start_goal_cells: int = 0) -> GridLayout:
+    """Two groups of ``n_agents / 2`` in adjacent rows at the two ends, facing each other; each agent's goal is at
+    the far end of its row, behind the other group (Fig. 9). With fewer free rows than agents there is no room for
+    everyone to step aside at once."""
+    check_agents("teams", n_agents, 2, 2 * rows, even=True)
+    per_team = n_agents // 2
+    first = (rows - per_team) // 2
+    team_rows = range(first, first + per_team)
+    starts = tuple((r, 0) for r in team_rows) + tuple((r, cols - 1) for r in team_rows)
+    goals = tuple((r, cols - 1) for r in team_rows) + tuple((r, 0) for r in team_rows)
+    return GridLayout(rows=rows, cols=cols, starts=starts, goals=goals, center_row=(rows - 1) / 2)
+
+
+def teams_plane(
+    length_m: float,
+    width_m: float,
+    n_agents: int = 4,
+    agent_radius_m: float = 0.3,
+    goal_radius_m: float = 0.3,
+    min_start_goal_m: float = 0.0,
+    end_margin_m: float = 0.5,
+) -> PlaneLayout:
+    """Two groups of ``n_agents / 2`` side by side (``SIDE_BY_SIDE_M`` apart) at the two ends, facing each other;
+    each agent's goal is at the far end of its line, behind the other group (Fig. 9)."""
+    per_team = n_agents // 2
+    fit = int((width_m - 2 * agent_radius_m) // TEAM_SPACING_M) + 1
+    check_agents("teams", n_agents, 2, 2 * fit, even=True)
+    half_span = (per_team - 1) * TEAM_SPACING_M / 2
+    ys = spread(per_team, width_m / 2 - half_span, width_m / 2 + half_span)
+    near, far = end_margin_m, length_m - end_margin_m
+    return PlaneLayout(
+        length_m=length_m,
+        width_m=width_m,
+        starts=tuple((near, y) for y in ys) + tuple((far, y) for y in ys),
+        headings=(0.0,) * per_team + (math.pi,) * per_team,
+        goals=tuple((far, y) for y in ys) + tuple((near, y) for y in ys),
+    )
