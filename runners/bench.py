@@ -8,6 +8,7 @@
     python runners/bench.py geometry           # ~6 min: what the continuous geometry allows (untrained success, ...)
     python runners/bench.py budget --baseline f082f2a   # ~6 min: per-iteration time budget, beside a revision
     python runners/bench.py reproduce --baseline 4549d80  # ~15 min: runners/reproduce.sh full's wall-clock, estimated
+    python runners/bench.py scenarios --agents 2 4 8 16   # ~3 min: env-steps/s at N agents, ours vs VMAS navigation
 
 Sections: ``env`` (env-steps/s of both domains beside VMAS give_way), ``planning`` (µs per plan per world of the
 scripted planners beside scipy), ``views`` (env-steps/s of the learner views with their opponents), ``training``
@@ -46,6 +47,7 @@ SECTIONS = {
     "geometry": "sidewalk.bench.geometry",
     "budget": "sidewalk.bench.budget",
     "reproduce": "sidewalk.bench.reproduce",
+    "scenarios": "sidewalk.bench.scenarios",
 }
 DEFAULT_SECTIONS = ("env", "planning", "views")
 
