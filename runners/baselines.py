@@ -63,8 +63,8 @@ def evaluate_team(scenario: str, domain: str, team: str, noise: float, seed: int
     core_cls = DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
     core = core_cls(episodes, seed=seed, params=experiment.env_params)
     name = "random" if team == "random" else PLANNER[domain]
-    team = ScriptedTeam(core, name)
-    metrics = evaluate(team.view, team, seed=seed, deterministic=False)
+    players = ScriptedTeam(core, name)
+    metrics = evaluate(players.view, players, seed=seed, deterministic=False)
     return {"scenario": scenario, "domain": domain, "team": team, "agents": core.n_agents, "noise": noise,
             "seed": seed, **{key: metrics[key] for key in METRICS}, "episode_length": metrics["episode_length"]}
 

@@ -349,7 +349,7 @@ def write_gallery_readme(out_dir: Path) -> Path:
     lines = [
         "# Scenarios",
         "",
-        "One episode per scenario (`env.layout=NAME`, see `sidewalk/envs/layouts.py`) and domain,",
+        "One episode per scenario (`env.layout=NAME`, see `sidewalk/envs/layouts/`) and domain,",
         f"every agent played by the domain's planner ({planners}), seed {GALLERY_SEED}, no noise.",
         "A still is the frame where the agents have closed in on each other most; click it for the GIF.",
         "Goals are stars in their agent's colour; dark cells and boxes are walls.",

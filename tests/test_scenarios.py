@@ -1,4 +1,4 @@
-"""The scenarios of paper §7 (sidewalk/envs/layouts.py): valid and reachable placements, random layouts that vary
+"""The scenarios of paper §7 (sidewalk/envs/layouts/): valid and reachable placements, random layouts that vary
 yet repeat, N-agent collisions, the door's gap, specs of every view, the Gymnasium and PettingZoo faces at N = 4,
 the ``present`` flag and the coordination metrics (makespan, deadlock rate, wait steps)."""
 
@@ -320,3 +320,19 @@ def test_two_planners_that_block_each_other_in_the_zipper_are_a_deadlock():
     assert metrics["timeout_rate"] == 1.0 and metrics["deadlock_rate"] == 1.0
     assert metrics["wait_steps"] > 0.9 * env.params.max_steps
     assert math.isnan(metrics["makespan"])
+
+
+def test_progress_shaping_pays_per_cell_of_shortest_path_around_the_walls():
+    env = DiscreteSidewalkEnv(1, seed=0, layout="door", n_agents=2, rewards={"c_progress": 0.01, "c_center": 0.0})
+    td = env.reset()
+    assert td["agents", "state"][0].tolist() == [[2, 0], [4, 0]]  # goals at the far end of the same rows
+    rewards = []
+    for actions in ([3, 3], [0, 3], [1, 1]):  # both RIGHT; agent 0 UP (away from the gap row); both DOWN
+        td["agents", "action"] = torch.tensor([actions])
+        td = env.step(td)["next"]
+        rewards.append(td["agents", "reward"].view(-1).tolist())
+    step, cell = -0.01, 0.01
+    expected = [[step + cell, step + cell], [step - cell, step + cell], [step + cell, step - cell]]
+    assert np.allclose(rewards, expected, atol=1e-6)
+    with pytest.raises(ValueError, match="c_progress needs a 70×70 grid"):
+        DiscreteSidewalkEnv(1, layout="random", width_cells=70, length_cells=70, rewards={"c_progress": 0.01})

@@ -8,8 +8,10 @@ A subclass supplies the dynamics through four hooks, VMAS-style:
   alike -- back at their start;
 - ``_advance(action, active)``: move the agents one step and report, per agent (B, N), who reached its goal,
   who hit a wall, who hit another agent, and the shaping term of the step;
-- ``_observe(reset)``: the per-agent entries ``observation``, ``state`` and ``goal``; on a reset, ``reset`` (B, N)
-  marks the worlds just reset, and every other world must get back exactly the observation the last step gave it.
+- ``_observe(worlds)``: the per-agent entries ``observation``, ``state`` and ``goal`` of every world (``worlds`` None)
+  or of the rows ``worlds`` (int64 (k,)) only: on a partial reset the base computes the worlds just reset and gives
+  every other world back exactly what the last output gave it. Random draws (observation noise) stay those of
+  every world, whichever worlds reset, so that a seed fixes them.
 
 Masks are materialised at (B, N) before use: mixing (B, N) with (B, 1) operands takes a broadcasting path that is
 several times slower than same-shape operands at thousands of worlds.
@@ -77,8 +79,8 @@ class SidewalkEnvBase(EnvBase):
     """
 
     Params: ClassVar[type]
-    # The reward weight of the domain's shaping term and the name of that weight in RewardParams.
-    shaping_weight_name: ClassVar[str]
+    # The name in RewardParams of the weight of the domain's shaping term; None: the domain weighs its terms itself.
+    shaping_weight_name: ClassVar[str | None]
 
     def __init__(
         self,
@@ -105,12 +107,14 @@ class SidewalkEnvBase(EnvBase):
 
         rewards: RewardParams = self.params.rewards
         self._shaping_mask = rewards.shaping_mask(self.n_agents, self.device)
-        self._shaping_weight = float(getattr(rewards, self.shaping_weight_name))
+        self._shaping_weight = 1.0 if self.shaping_weight_name is None else float(getattr(rewards, self.shaping_weight_name))
 
         shape = (num_envs, self.n_agents)
         self._active = torch.zeros(shape, dtype=torch.bool, device=self.device)
         self._status = {key: torch.zeros(shape, dtype=torch.bool, device=self.device) for key in INFO_KEYS}
         self._steps = torch.zeros(num_envs, dtype=torch.long, device=self.device)
+        # The observation, state and goal entries of the last output; a partial reset recomputes only its worlds.
+        self._last_observed: dict[str, torch.Tensor] | None = None
         self._init_world()
         self._make_spec()
 
@@ -130,7 +134,7 @@ class SidewalkEnvBase(EnvBase):
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         raise NotImplementedError
 
-    def _observe(self, reset: torch.Tensor | None) -> dict[str, torch.Tensor]:
+    def _observe(self, worlds: torch.Tensor | None) -> dict[str, torch.Tensor]:
         raise NotImplementedError
 
     def _agent_specs(self) -> tuple[dict[str, Any], Any]:
@@ -194,7 +198,7 @@ class SidewalkEnvBase(EnvBase):
         for key, status in self._status.items():
             self._status[key] = status & keep
         self._steps = self._steps.masked_fill(rows, 0)
-        return self._output(None, reset)
+        return self._output(None, rows)
 
     def _step_proc_data(self, next_tensordict_out: TensorDictBase) -> TensorDictBase:
         # _step emits every done key and the reward in its spec's shape, so TorchRL's completion and reshaping
@@ -240,8 +244,25 @@ class SidewalkEnvBase(EnvBase):
         self._steps = self._steps + 1
         return self._output(reward, None)
 
-    def _output(self, reward: torch.Tensor | None, reset: torch.Tensor | None) -> TensorDictBase:
-        """The env's output for every world, from the current state; ``reset`` (B, N) is set on resets."""
+    def _observations(self, rows: torch.Tensor | None) -> dict[str, torch.Tensor]:
+        """``_observe``'s entries of every world; on a reset (``rows``: bool (B,), the worlds reset) only the reset
+        worlds are observed anew, the others keep the last output's (with auto-reset a few worlds reset a step, and
+        observing all of them again cost as much as the step). Out of place: the caller holds the last output."""
+        last = self._last_observed
+        if rows is None or last is None:
+            entries = self._observe(None)
+        else:
+            worlds = rows.nonzero().squeeze(-1)
+            if worlds.numel() == self.num_envs:
+                entries = self._observe(None)
+            else:
+                fresh = self._observe(worlds)
+                entries = {key: last[key].index_copy(0, worlds, value) for key, value in fresh.items()}
+        self._last_observed = entries
+        return dict(entries)
+
+    def _output(self, reward: torch.Tensor | None, rows: torch.Tensor | None) -> TensorDictBase:
+        """The env's output for every world, from the current state; ``rows`` (B,) marks the worlds a reset reset."""
         agents_shape = torch.Size((*self.batch_size, self.n_agents))
         terminated = ~self._active
         all_terminated = terminated.all(-1)
@@ -250,7 +271,7 @@ class SidewalkEnvBase(EnvBase):
         if reward is not None:
             self._status["timed_out"] = self._status["timed_out"] | truncated
         world_truncated = timeout & ~all_terminated
-        entries = self._observe(reset)
+        entries = self._observations(rows)
         entries["present"] = self._present.unsqueeze(-1)
         entries["info"] = TensorDict._new_unsafe(
             {key: value.unsqueeze(-1) for key, value in self._status.items()}, batch_size=agents_shape

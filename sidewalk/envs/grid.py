@@ -83,7 +83,7 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
     """
 
     Params = DiscreteParams
-    shaping_weight_name = "c_center"
+    shaping_weight_name = None  # two shaping terms, weighed in _advance: c_center and c_progress
 
     @staticmethod
     def layout_for(p: DiscreteParams) -> GridLayout | RandomGridLayout:
@@ -141,9 +141,41 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
             else:
                 self._backdrop = torch.zeros((self.num_envs, n, self._n_pixels + 1), dtype=torch.uint8, device=device)
             self._agent_grey_pixels = self._agent_grey.repeat_interleave(k * k, dim=1).expand(self.num_envs, n, -1)
+        rewards = self.params.rewards
+        self._c_center, self._c_progress = float(rewards.c_center), float(rewards.c_progress)
+        if self._c_progress != 0.0:
+            self._path_length = self._path_length_table()
         self._vector_scale = torch.tensor(
             [max(self.rows - 1, 1), max(self.cols - 1, 1)], dtype=torch.float32, device=device
         )
+
+    MAX_PROGRESS_CELLS = 4096  # the shortest-path table of c_progress holds cells² floats
+
+    def _path_length_table(self) -> torch.Tensor:
+        """Float (cells, cells): moves on the shortest path between two free cells around the walls (the table
+        behind ``c_progress``); pairs that no path joins get ``rows·cols``, so no step earns progress toward them."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import shortest_path
+
+        rows, cols, cells = self.rows, self.cols, self.rows * self.cols
+        if cells > self.MAX_PROGRESS_CELLS:
+            raise ValueError(
+                f"rewards.c_progress needs a {rows}×{cols} grid's shortest paths ({cells} cells, at most "
+                f"{self.MAX_PROGRESS_CELLS}); use a smaller grid or c_progress=0"
+            )
+        free = ~self._blocked.cpu().numpy()
+        cell = np.arange(cells).reshape(rows, cols)
+        edges = [
+            (a, b)
+            for a_cells, b_cells in ((cell[:, :-1], cell[:, 1:]), (cell[:-1, :], cell[1:, :]))
+            for a, b in zip(a_cells.ravel(), b_cells.ravel())
+            if free[a] and free[b]
+        ]
+        source, target = np.array(edges, dtype=np.int64).reshape(-1, 2).T
+        graph = coo_matrix((np.ones(len(source)), (source, target)), shape=(cells, cells))
+        lengths = shortest_path(graph, directed=False, unweighted=True)
+        lengths[~np.isfinite(lengths)] = cells
+        return torch.tensor(lengths, dtype=torch.float32, device=self.device)
 
     def _agent_specs(self) -> tuple[dict[str, Any], Any]:
         agents, device, n = (*self.batch_size, self.n_agents), self.device, self.n_agents
@@ -221,38 +253,51 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
 
         self._row, self._col = new_row, new_col
         self._present = present & ~hit_agent if self.params.remove_crashed else present
-        distance_from_axis = (new_row.to(torch.float32) - self.layout.center_row).abs()
-        return reached, hit_wall, hit_agent, distance_from_axis
+        shaping = self._c_center * (new_row.to(torch.float32) - self.layout.center_row).abs()
+        if self._c_progress != 0.0:
+            goal_cell = self._goal_row * self.cols + self._goal_col
+            before = self._path_length[row * self.cols + col, goal_cell]
+            after = self._path_length[new_row * self.cols + new_col, goal_cell]
+            shaping = shaping + self._c_progress * (before - after)
+        return reached, hit_wall, hit_agent, shaping
 
-    def _observe(self, reset: torch.Tensor | None) -> dict[str, torch.Tensor]:
-        # Grid observations are a deterministic function of the state, so unreset worlds see the same again.
+    def _observe(self, worlds: torch.Tensor | None) -> dict[str, torch.Tensor]:
+        # Grid observations are a deterministic function of the state: a reset observes its worlds only.
+        state = (self._row, self._col, self._goal_row, self._goal_col, self._present)
+        if worlds is not None:
+            state = tuple(tensor.index_select(0, worlds) for tensor in state)
+        row, col, goal_row, goal_col, present = state
         return {
-            "observation": self._image() if self.params.observation == "image" else self._vector(),
-            "state": torch.stack([self._row, self._col], dim=-1),
-            "goal": torch.stack([self._goal_row, self._goal_col], dim=-1),
+            "observation": (
+                self._image(row, col, present, worlds) if self.params.observation == "image"
+                else self._vector(row, col, goal_row, goal_col, present)
+            ),
+            "state": torch.stack([row, col], dim=-1),
+            "goal": torch.stack([goal_row, goal_col], dim=-1),
         }
 
-    def _image(self) -> torch.Tensor:
-        batch, n = self.num_envs, self.n_agents
-        cell = torch.where(self._present, self._row * self.cols + self._col, self.rows * self.cols)
-        pixels = self._cell_pixels.index_select(0, cell.view(-1)).view(batch, 1, -1).expand(batch, n, -1)
-        canvas = self._backdrop.expand(batch, n, -1).clone(memory_format=torch.contiguous_format)
-        canvas.scatter_(2, pixels, self._agent_grey_pixels)
+    def _image(
+        self, row: torch.Tensor, col: torch.Tensor, present: torch.Tensor, worlds: torch.Tensor | None
+    ) -> torch.Tensor:
+        """The images of the worlds ``worlds`` (None: all), whose agents stand at ``row``, ``col`` (k, N)."""
+        batch, n = row.shape
+        cell = torch.where(present, row * self.cols + col, self.rows * self.cols)
+        pixels = self._cell_pixels.index_select(0, cell.view(-1)).view(batch, 1, n * self._cell_pixels.shape[1])
+        pixels = pixels.expand(batch, n, -1)
+        backdrop = self._backdrop if worlds is None or self.layout.fixed else self._backdrop.index_select(0, worlds)
+        canvas = backdrop.expand(batch, n, -1).clone(memory_format=torch.contiguous_format)
+        canvas.scatter_(2, pixels, self._agent_grey_pixels[:batch])
         return canvas[..., : self._n_pixels].view(batch, n, *self._image_shape)
 
-    def _vector(self) -> torch.Tensor:
+    def _vector(
+        self, row: torch.Tensor, col: torch.Tensor, goal_row: torch.Tensor, goal_col: torch.Tensor, present: torch.Tensor
+    ) -> torch.Tensor:
         scale_row, scale_col = self._vector_scale.tolist()
         per_agent = torch.stack(
-            [
-                self._row / scale_row,
-                self._col / scale_col,
-                self._goal_row / scale_row,
-                self._goal_col / scale_col,
-                self._present.to(torch.float32),
-            ],
+            [row / scale_row, col / scale_col, goal_row / scale_row, goal_col / scale_col, present.to(torch.float32)],
             dim=-1,
         )
-        return per_agent.index_select(1, self._ego_order.view(-1)).view(self.num_envs, self.n_agents, -1)
+        return per_agent.index_select(1, self._ego_order.view(-1)).view(row.shape[0], self.n_agents, 5 * self.n_agents)
 
     def render(self, env_index: int = 0, pixels_per_cell: int = 24) -> np.ndarray:
         """The world ``env_index`` as an RGB uint8 array (rows·px, cols·px, 3): agents as discs, goals as squares."""

@@ -16,7 +16,10 @@ class RewardParams:
     ``alpha`` is the cooperation weight of eq. 2 applied to the other agents' goal reward: 1.0 is the paper's
     *explicit* cooperative reward (+1 each when both arrive), 0.0 the *implicit* one. ``c_center`` shapes the grid
     (per cell of distance from the central axis), ``c_potential`` the continuous world (per m² of squared
-    distance to the agent's own goal). ``shaped_agents`` lists the agents that receive shaping; ``None`` means
+    distance to the agent's own goal); ``c_progress`` (ours, 0 by default, for the grid scenarios whose walls make
+random exploration lethal) pays per cell the shortest path around the walls to the agent's own goal shrank in the
+step, a potential-based term (Ng et al. 1999: it leaves the optimal policies of the undiscounted game as they
+are). ``shaped_agents`` lists the agents that receive shaping; ``None`` means
     all of them (the paper's centralized continuous run shaped agent 0 only: ``(0,)``).
     """
 
@@ -26,10 +29,11 @@ class RewardParams:
     alpha: float = 1.0
     c_center: float = -0.01
     c_potential: float = -0.0001
+    c_progress: float = 0.0  # grid: per cell of shortest-path progress toward the own goal (0: the paper's reward)
     shaped_agents: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
-        for name in ("c_step", "c_goal", "c_collision", "c_center", "c_potential"):
+        for name in ("c_step", "c_goal", "c_collision", "c_center", "c_potential", "c_progress"):
             check_range(name, getattr(self, name))
         check_range("alpha", self.alpha, -1.0, 1.0)
         if self.shaped_agents is not None:
