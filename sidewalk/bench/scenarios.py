@@ -47,22 +47,27 @@ work (moves, walls, rewards, goals, resets) is O(N) per world, and the agent-age
 (grid: shared cells and swaps; continuous: the swept closest approach of every pair) build (N, N, B) tensors,
 O(N²) per world, as does every observation that lists all agents for each agent (the vector and continuous ones,
 N × 5N and N × 6N). The grid image is N ego images of the whole room, O(N · cells), and the room grows with N:
-O(N²) per world with a large constant (26 KB a world-step at N = 16). At 1 thread and 4096 worlds (2 cores shared
-with training runs, 2026-11-23; ``python runners/bench.py scenarios``):
+O(N²) per world with a large constant (26 KB a world-step at N = 16). A reset observes only the worlds it resets
+(with auto-reset, a few a step) and gives the others the last output's observations; the continuous pair check
+computes each unordered pair once (the relation is symmetric bit for bit). At 1 thread and 4096 worlds (2 cores
+shared with training runs, which were idle while timed: cpu ~100 %; 2026-11-23; ``python runners/bench.py
+scenarios``, median of three runs per cell):
 
                     µs per agent-step, N = 2 / 4 / 8 / 16    N=16 ÷ N=2    ours ÷ VMAS, N = 2 / 4 / 8 / 16
-    grid vector     0.90 / 0.73 / 0.59 / 0.54                0.59          9.2 / 29 / 69 / 95
-    grid image      1.26 / 1.10 / 1.43 / 4.24                3.37          6.6 / 19 / 29 / 12
-    continuous      1.12 / 0.92 / 0.58 / 1.17                1.04          7.4 / 23 / 71 / 43
-    VMAS navigation 8.3  / 21   / 41   / 51                  6.1
+    grid vector     0.70 / 0.56 / 0.48 / 0.50                0.76          11 / 33 / 67 / 126
+    grid image      1.18 / 0.84 / 0.89 / 1.57                1.39          6.5 / 20 / 34 / 39
+    continuous      0.71 / 0.63 / 0.58 / 0.63                0.89          11 / 28 / 59 / 112
+    VMAS navigation 7.7  / 17   / 32   / 63                  8.1
 
 Up to N = 8 the fixed cost of a step (TorchRL and TensorDict bookkeeping, ~100 small kernels, one layout draw for
 the worlds reset) is shared by more agents, so the cost per agent-step falls; at N = 16 the O(N²) parts show (the
-continuous core's pair checks and all-agent observations are about half its step) but stay within 2× of N = 2.
-The image does not (its N=16 ÷ N=2 is 3.4: memory traffic of the images, not the dynamics). VMAS's cost per
-agent-step grows 6× (Python loops over agents and agent pairs in its collision and lidar code), so our lead grows
-with N: ≥ 10× from N = 4 on, while at N = 2 it missed 10× in this run (three runs: grid vector 9.2-14, image
-6.5-9.6, continuous 7.4-10; VMAS at N = 2 ran 40-60 k steps/s).
+continuous core's pair checks and all-agent observations) but stay within 2× of N = 2. The image's step at N = 16
+is mostly memory: two fresh 106 MB batches of images a step (the step's and the reset's), whose buffers come from
+NumPy, which asks Linux for huge pages, ~3× faster to fill than torch's 4 KiB pages (before both changes its
+N=16 ÷ N=2 was 3.4). VMAS's cost per agent-step grows 8× (Python loops over agents and agent pairs in its
+collision and lidar code), so our lead grows with N: ≥ 10× from N = 4 on; at N = 2, where a step is mostly fixed
+cost, the image core misses 10× (three runs: image 5.3-8.7, grid vector 8.7-11.6, continuous 10-15; VMAS at N = 2
+ran 64-66 k steps/s).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ import torch
 from torchrl.data import Bounded, Unbounded
 
 from sidewalk._checks import check_int, check_range
-from sidewalk.envs.base import SidewalkEnvBase
+from sidewalk.envs.base import SidewalkEnvBase, new_output
 from sidewalk.envs.layouts import PlaneLayout, RandomPlaneLayout, plane_layout
 from sidewalk.envs.rewards import RewardParams
 
@@ -104,6 +104,13 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         # broadcasting over a long last axis is ~10× faster than over trailing axes of size 2.
         self._not_self = ~torch.eye(n, dtype=torch.bool, device=device).unsqueeze(-1)
         self._ego_order = (torch.arange(n, device=device)[:, None] + torch.arange(n, device=device)) % n
+        # The swept contact of agents i and j is that of j and i, bit for bit: it is computed for the pairs i < j
+        # and copied to rows i·N + j and j·N + i of the (N·N, B) result, whose diagonal rows are True.
+        self._pair_first, self._pair_second = torch.triu_indices(n, n, 1, device=device)
+        self._pair_rows = torch.cat(
+            [self._pair_first * n + self._pair_second, self._pair_second * n + self._pair_first]
+        )
+        self._self_pairs = torch.eye(n, dtype=torch.bool, device=device).view(n * n, 1)
         radius = p.agent_radius_m
         self._x_range = (radius, self.layout.length_m - radius)
         self._y_range = (radius, self.layout.width_m - radius)
@@ -113,7 +120,6 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
             torch.zeros(shape, device=device) for _ in range(6)
         )
         self._present = torch.zeros(shape, dtype=torch.bool, device=device)
-        self._last_observation: torch.Tensor | None = None
 
     def _agent_specs(self) -> tuple[dict[str, Any], Any]:
         agents, device, n = (*self.batch_size, self.n_agents), self.device, self.n_agents
@@ -146,8 +152,11 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         self._speed = self._speed.masked_fill(reset, 0.0)
         self._present = self._present | reset
 
-    def _uniform_noise(self, shape: torch.Size) -> torch.Tensor:
+    def _uniform_noise(self, shape: torch.Size, rows: torch.Tensor | None = None) -> torch.Tensor:
+        """Uniform ±noise of ``shape``; with ``rows``, drawn for the whole shape but only those rows kept."""
         noise = torch.rand(shape, generator=self._generator, device=self.device)
+        if rows is not None:
+            noise = noise.index_select(0, rows)
         return (2.0 * noise - 1.0) * self.params.noise
 
     def _check_finite(self, action: torch.Tensor) -> None:
@@ -206,15 +215,24 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
 
         In the pair's relative frame one disc moves from p0 to p0 + d; the gap is smallest at
         t = clamp(-p0·d / |d|², 0, 1), which covers agents that would pass through each other within a step.
+        The relation is symmetric bit for bit (swapping i and j negates p0 and d exactly), so only the pairs i < j
+        are computed; (x, y) and (dx, dy) are stacked to compute both coordinates in one operation.
         """
-        x0, y0, x1, y1 = (t.t().contiguous() for t in (self._x, self._y, x, y))
-        rel_x0, rel_y0 = x0.unsqueeze(1) - x0.unsqueeze(0), y0.unsqueeze(1) - y0.unsqueeze(0)
-        rel_dx = x1.unsqueeze(1) - x1.unsqueeze(0) - rel_x0
-        rel_dy = y1.unsqueeze(1) - y1.unsqueeze(0) - rel_y0
-        approach = (rel_x0 * rel_dx + rel_y0 * rel_dy).neg_()
-        closest = (approach / (rel_dx.square() + rel_dy.square()).clamp_min(1e-12)).clamp_(0.0, 1.0)
-        gap_sq = (rel_x0 + closest * rel_dx).square() + (rel_y0 + closest * rel_dy).square()
-        return gap_sq < (2 * self.params.agent_radius_m) ** 2
+        n, batch = self.n_agents, self.num_envs
+        points = torch.stack([self._x.t(), self._y.t(), x.t(), y.t()])  # (4, N, B): x0, y0, x1, y1
+        # (4, P, B): x0, y0, x1, y1 of agent i minus those of agent j, for the pairs i < j.
+        differences = points.index_select(1, self._pair_first) - points.index_select(1, self._pair_second)
+        start = differences[:2]
+        delta = differences[2:].sub_(start)  # (dx, dy): the relative motion in the step
+        products = start * delta
+        approach = products[0].add_(products[1]).neg_()
+        squares = delta.square()
+        closest = approach.div_(squares[0].add_(squares[1]).clamp_min_(1e-12)).clamp_(0.0, 1.0)
+        gap = delta.mul_(closest).add_(start).square_()
+        contact = gap[0].add_(gap[1]) < (2 * self.params.agent_radius_m) ** 2
+        pairs = self._self_pairs.expand(n * n, batch).clone()
+        pairs.index_copy_(0, self._pair_rows, torch.cat([contact, contact]))
+        return pairs.view(n, n, batch)
 
     def _touches_box(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         """Bool (B, N): the agent's disc overlaps an interior box."""
@@ -224,17 +242,21 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         gap_sq = (x.unsqueeze(-1) - near_x).square() + (y.unsqueeze(-1) - near_y).square()
         return (gap_sq < self.params.agent_radius_m**2).any(-1)
 
-    def _observe(self, reset: torch.Tensor | None) -> dict[str, torch.Tensor]:
-        state = torch.stack([self._x, self._y, self._speed, self._heading], dim=-1)
-        goal = torch.stack([self._goal_x, self._goal_y], dim=-1)
+    def _observe(self, worlds: torch.Tensor | None) -> dict[str, torch.Tensor]:
+        fields = (self._x, self._y, self._speed, self._heading, self._goal_x, self._goal_y)
+        if worlds is not None:
+            fields = tuple(tensor.index_select(0, worlds) for tensor in fields)
+        state = torch.stack(fields[:4], dim=-1)
+        goal = torch.stack(fields[4:], dim=-1)
         per_agent = torch.cat([state, goal], dim=-1)
-        observation = per_agent.index_select(1, self._ego_order.view(-1)).view(self.num_envs, self.n_agents, -1)
+        n, width = self.n_agents, len(OBSERVATION_FIELDS)
+        observation = new_output((len(per_agent), n * n, width), torch.float32, self.device)
+        torch.index_select(per_agent, 1, self._ego_order.view(-1), out=observation)
+        observation = observation.view(len(per_agent), n, n * width)
         if self.params.noise > 0.0:
-            observation = observation + self._uniform_noise(observation.shape)
-            if reset is not None and self._last_observation is not None:
-                # A reset draws new noise for the reset worlds only; the others keep what they were shown.
-                observation = torch.where(reset.unsqueeze(-1), observation, self._last_observation)
-            self._last_observation = observation
+            # A reset draws the noise of every world and keeps its own worlds' (the others keep what they were
+            # shown), so the generator's stream does not depend on which worlds reset.
+            observation.add_(self._uniform_noise(torch.Size((self.num_envs, n, n * width)), worlds))
         return {"observation": observation, "state": state, "goal": goal}
 
     def render(self, env_index: int = 0, pixels_per_m: int = 60) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -51,27 +52,63 @@ class RandomGridLayout:
 
     def sample(self, n: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """Starts and goals of ``n`` worlds, int64 (n, N, 2), drawn from ``generator``."""
-        device, cells, cols = generator.device, self.rows * self.cols, self.cols
-        free = ~self.blocked_mask(device).view(-1)
+        device, cells, n_agents = generator.device, self.rows * self.cols, self.n_agents
+        blocked_cells = tuple(tuple(cell) for cell in self.blocked)
+        blocked, cell_of, near = _grid_tables(self.rows, self.cols, self.min_start_goal_cells, blocked_cells, device)
+        # The start scores and then each agent's goal scores, (n, cells) each. A few worlds' come in one draw: the
+        # generator's stream is the same as drawing them one after another (a CPU generator fills a tensor in
+        # order), and one call costs less than N + 1; many worlds' (a full reset) one at a time, as they are used.
+        if (n_agents + 1) * n * cells <= MAX_ONE_DRAW:
+            scores = iter(torch.rand(n_agents + 1, n, cells, generator=generator, device=device).unbind(0))
+        else:
+            scores = (torch.rand(n, cells, generator=generator, device=device) for _ in range(n_agents + 1))
         # The top N of i.i.d. scores are a uniform random subset of cells in a uniform random order.
-        score = torch.rand(n, cells, generator=generator, device=device).masked_fill(~free, -1.0)
-        start_cell = score.topk(self.n_agents, dim=1).indices  # (n, N)
-        cell_row = torch.arange(cells, device=device) // cols
-        cell_col = torch.arange(cells, device=device) % cols
-        taken = (~free).expand(n, -1).clone()
-        goal_cell = torch.empty_like(start_cell)
-        for agent in range(self.n_agents):  # agents one after another: each goal avoids those drawn before it
-            start_row, start_col = (start_cell[:, agent : agent + 1] // cols, start_cell[:, agent : agent + 1] % cols)
-            distance = (cell_row - start_row).abs() + (cell_col - start_col).abs()
-            valid = (distance >= self.min_start_goal_cells) & ~taken
-            score = torch.rand(n, cells, generator=generator, device=device).masked_fill(~valid, -1.0)
-            pick = score.argmax(-1)
-            if not bool(valid.gather(1, pick[:, None]).all()):
-                raise RuntimeError(f"no free goal cell for agent {agent} in some world of the random layout")
-            goal_cell[:, agent] = pick
-            taken.scatter_(1, pick[:, None], True)
-        as_cells = lambda flat: torch.stack([flat // cols, flat % cols], dim=-1)
-        return as_cells(start_cell), as_cells(goal_cell)
+        start_score = next(scores)
+        start_score = start_score if blocked is None else start_score.masked_fill(blocked, -1.0)
+        start_cell = start_score.topk(n_agents, dim=1).indices  # (n, N)
+        taken = torch.zeros(n, cells, dtype=torch.bool, device=device) if blocked is None else blocked.repeat(n, 1)
+        # Agent-major outputs, so that max writes each agent's row in place.
+        best = torch.empty(n_agents, n, device=device)
+        goal_cell = torch.empty(n_agents, n, dtype=torch.long, device=device)
+        for agent in range(n_agents):  # agents one after another: each goal avoids those drawn before it
+            # Goal candidates: at least min_start_goal_cells from the agent's start, on no wall or earlier goal.
+            invalid = near(start_cell[:, agent]).logical_or_(taken)
+            torch.max(next(scores).masked_fill(invalid, -1.0), -1, out=(best[agent], goal_cell[agent]))
+            taken.scatter_(1, goal_cell[agent, :, None], True)
+        if not bool((best >= 0.0).all()):
+            agent = int((best < 0.0).any(1).nonzero()[0])
+            raise RuntimeError(f"no free goal cell for agent {agent} in some world of the random layout")
+        goal_cell = goal_cell.t()
+        return cell_of[start_cell], cell_of[goal_cell]
+
+
+MAX_NEAR_TABLE_CELLS = 2048  # rooms up to this many cells keep a cells × cells table of which cells lie too near
+MAX_ONE_DRAW = 1 << 22  # scores drawn in one call at most (16 MB)
+
+
+@functools.lru_cache(maxsize=16)
+def _grid_tables(
+    rows: int, cols: int, min_start_goal_cells: int, blocked_cells: tuple[tuple[int, int], ...], device: torch.device
+):
+    """What ``RandomGridLayout.sample`` reuses on every call: the blocked cells (bool (cells,), None when there are
+    none), each cell's (row, col) (int64 (cells, 2)), and ``near(start)``, bool (k, cells): the cells closer than
+    ``min_start_goal_cells`` (Manhattan) to each of the cells ``start`` (k,), a new tensor each call."""
+    cells = rows * cols
+    blocked = blocked_mask_of(rows, cols, blocked_cells, device).view(-1)
+    flat = torch.arange(cells, device=device)
+    cell_row, cell_col = flat // cols, flat % cols
+    cell_of = torch.stack([cell_row, cell_col], dim=-1)
+
+    def distance_below(start: torch.Tensor) -> torch.Tensor:
+        start_row, start_col = cell_row[start].unsqueeze(1), cell_col[start].unsqueeze(1)
+        return (cell_row - start_row).abs() + (cell_col - start_col).abs() < min_start_goal_cells
+
+    if cells <= MAX_NEAR_TABLE_CELLS:
+        table = distance_below(flat)
+        near = functools.partial(torch.index_select, table, 0)
+    else:
+        near = distance_below
+    return (blocked if bool(blocked.any()) else None), cell_of, near
 
 
 @dataclass(frozen=True)
@@ -142,44 +179,73 @@ class RandomPlaneLayout:
     def _draw(self, n: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """One placement of ``n`` worlds: starts, goals and whether each world's placement is valid (n,)."""
         device = generator.device
+        low, span = _plane_bounds(self.length_m, self.width_m, self.wall_gap_m, device)
         starts = torch.empty(n, self.n_agents, 2, device=device)
         goals = torch.empty(n, self.n_agents, 2, device=device)
         ok = torch.ones(n, dtype=torch.bool, device=device)
         for agent in range(self.n_agents):  # agents one after another: each point keeps clear of those before it
-            ok &= self._place(starts[:, agent], generator, starts[:, :agent], self.start_gap_m)
-            ok &= self._place(goals[:, agent], generator, goals[:, :agent], self.goal_gap_m, starts[:, agent])
+            for out, placed, gap_m, own_start in (
+                (starts, starts[:, :agent], self.start_gap_m, None),
+                (goals, goals[:, :agent], self.goal_gap_m, starts[:, agent]),
+            ):
+                missing = self._place(out[:, agent], generator, low, span, placed, gap_m, own_start)
+                if missing is not None:
+                    ok[missing] = False
         return starts, goals, ok
 
     def _place(
         self,
         out: torch.Tensor,
         generator: torch.Generator,
+        low: torch.Tensor,
+        span: torch.Tensor,
         placed: torch.Tensor,
         gap_m: float,
         own_start: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        """Write into ``out`` (n, 2) the first of a few uniform candidates at least ``gap_m`` from every ``placed``
-        point (n, P, 2) -- and, for a goal, ``min_start_goal_m`` from ``own_start`` (n, 2) --, trying again for the
-        worlds that got none; returns bool (n,): a point was found."""
+    ) -> torch.Tensor | None:
+        """Write into ``out`` (n, 2) the first of a few uniform candidates in ``low + span · [0, 1)²`` at least
+        ``gap_m`` from every ``placed`` point (n, P, 2) -- and, for a goal, ``min_start_goal_m`` from ``own_start``
+        (n, 2) --, trying again for the worlds that got none; returns the worlds (int64) that got no point in
+        ``PLACE_ROUNDS`` rounds, or None. Usually every world finds one in the first round: that round skips the
+        bookkeeping of the worlds still pending."""
         device, n = generator.device, out.shape[0]
-        low = torch.tensor([self.wall_gap_m, self.wall_gap_m], device=device)
-        span = torch.tensor([self.length_m, self.width_m], device=device) - 2 * low
-        pending = torch.arange(n, device=device)
+        pending: torch.Tensor | None = None  # None: every world
         for _ in range(self.PLACE_ROUNDS):
-            candidates = low + span * torch.rand(pending.numel(), self.CANDIDATES, 2, generator=generator, device=device)
-            valid = clear_of(candidates, placed[pending], gap_m)
+            count = n if pending is None else pending.numel()
+            candidates = low + span * torch.rand(count, self.CANDIDATES, 2, generator=generator, device=device)
+            valid = None
+            if placed.shape[1]:
+                valid = clear_of(candidates, placed if pending is None else placed[pending], gap_m)
             if own_start is not None:
-                to_start = candidates - own_start[pending].unsqueeze(1)
-                valid &= to_start.square().sum(-1) >= self.min_start_goal_m**2
-            found = valid.any(-1)
+                start = own_start if pending is None else own_start[pending]
+                far = (candidates - start.unsqueeze(1)).square().sum(-1) >= self.min_start_goal_m**2
+                valid = far if valid is None else valid & far
+            if valid is None:  # the first agent's start: no point to keep clear of, every world takes its first
+                out.copy_(candidates[:, 0])
+                return None
             first = valid.to(torch.uint8).argmax(-1)
-            out[pending[found]] = candidates[found, first[found]]
-            pending = pending[~found]
-            if pending.numel() == 0:
-                break
-        placed = torch.ones(n, dtype=torch.bool, device=device)
-        placed[pending] = False
-        return placed
+            found = valid.any(-1)
+            if bool(found.all()):
+                chosen = candidates.gather(1, first.view(-1, 1, 1).expand(-1, 1, 2)).squeeze(1)
+                if pending is None:
+                    out.copy_(chosen)
+                else:
+                    out[pending] = chosen
+                return None
+            got = found.nonzero().squeeze(-1)
+            rows = got if pending is None else pending[got]
+            out[rows] = candidates[got, first[got]]
+            missing = (~found).nonzero().squeeze(-1)
+            pending = missing if pending is None else pending[missing]
+        return pending
+
+
+@functools.lru_cache(maxsize=16)
+def _plane_bounds(length_m: float, width_m: float, wall_gap_m: float, device: torch.device):
+    """(low, span), float32 (2,) each: the box of the points a random plane layout places, ``low + span · [0, 1)²``."""
+    low = torch.tensor([wall_gap_m, wall_gap_m], device=device)
+    span = torch.tensor([length_m, width_m], device=device) - 2 * low
+    return low, span
 
 
 def random_grid(rows: int, cols: int, n_agents: int = 2, min_start_goal_cells: int = 4) -> RandomGridLayout:
