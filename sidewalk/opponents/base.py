@@ -62,6 +62,19 @@ class Opponent(TensorDictModuleBase):
     ) -> torch.Tensor:
         raise NotImplementedError
 
+    def present(
+        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Bool (B, N): who occupies space -- the env's ``("agents", "present")`` (B, N, 1) when given, else what
+        ``inferred_present`` makes of state, goal and done (callers that hold only those)."""
+        if present is not None:
+            return present.squeeze(-1)
+        return self.inferred_present(state, goal, done)
+
+    def inferred_present(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
+        """Bool (B, N): presence as the opponent infers it without the env's flag; by default, not done."""
+        return ~done.squeeze(-1)
+
     def reset(self, rows: torch.Tensor | None = None) -> None:
         """Forget per-world memory of the worlds in ``rows`` (all worlds if ``None``)."""
 

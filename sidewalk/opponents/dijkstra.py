@@ -136,7 +136,7 @@ class DijkstraOpponent(Opponent):
         device, controlled = state.device, self._controlled_index
         # Worlds last and contiguous, (N, B): results of broadcasts then come out contiguous too.
         row, col = state[..., 0].t().contiguous(), state[..., 1].t().contiguous()
-        present = self._present(state, goal, done, present).t().contiguous()
+        present = self.present(state, goal, done, present).t().contiguous()
 
         # Avoidance zones of the present agents, (rows, cols, N, B); each controlled agent avoids the others'.
         near_row = (self._row_index - row).abs() <= self.avoid_radius_cells
@@ -258,13 +258,8 @@ class DijkstraOpponent(Opponent):
             segments.append(last.narrow(dim, 0, length) + last.narrow(dim, shift, length))
         return segments
 
-    def _present(
-        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
-    ) -> torch.Tensor:
-        """Bool (B, N): the agent is in the world -- the env's ``("agents", "present")`` (B, N, 1) when given;
-        otherwise inferred: not done, done at its goal, or kept after a crash."""
-        if present is not None:
-            return present.squeeze(-1)
+    def inferred_present(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
+        """Bool (B, N): not done, done at its goal, or kept after a crash."""
         if not self._remove_crashed:
             return torch.ones(state.shape[:2], dtype=torch.bool, device=state.device)
         return ~done.squeeze(-1) | (state == goal).all(-1)

@@ -327,7 +327,7 @@ class PRMOpponent(Opponent):
         n_worlds, n_controlled = state.shape[0], len(self.controlled)
         # Worlds last and contiguous, (N, B): results of broadcasts then come out contiguous too.
         agent_x, agent_y = state[..., 0].t().contiguous(), state[..., 1].t().contiguous()
-        present = self._present(state, goal, done, present).t().contiguous()
+        present = self.present(state, goal, done, present).t().contiguous()
         avoided = self._avoided(state, agent_x, agent_y, present)
         lanes = n_controlled * n_worlds
         node_x, node_y = self._node_x, self._node_y
@@ -562,13 +562,8 @@ class PRMOpponent(Opponent):
         action = torch.stack([accel, turn], dim=-1).transpose(0, 1)  # (B, C, 2)
         return action.masked_fill(done[:, self._controlled_index], 0.0)
 
-    def _present(
-        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
-    ) -> torch.Tensor:
-        """Bool (B, N): the agent is in the world -- the env's ``("agents", "present")`` (B, N, 1) when given;
-        otherwise inferred: not done, done at its goal, or kept after a crash."""
-        if present is not None:
-            return present.squeeze(-1)
+    def inferred_present(self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
+        """Bool (B, N): not done, done at its goal, or kept after a crash."""
         if not self._params.remove_crashed:
             return torch.ones(state.shape[:2], dtype=torch.bool, device=state.device)
         at_goal = (state[..., :2] - goal).square().sum(-1) <= self._params.goal_radius_m**2
