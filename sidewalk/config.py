@@ -24,8 +24,15 @@ from sidewalk.envs.unicycle import ContinuousParams, ContinuousSidewalkEnv
 from sidewalk.views import MAX_JOINT_ACTIONS
 
 DOMAINS = ("discrete", "continuous")
-OPPONENT_DOMAINS = {"random": DOMAINS, "dijkstra": ("discrete",), "prm": ("continuous",), "centralized": DOMAINS}
-ALGO_DOMAINS = {"dqn": ("discrete",), "trpo": DOMAINS, "ppo": DOMAINS}
+OPPONENT_DOMAINS = {
+    "random": DOMAINS, "dijkstra": ("discrete",), "prm": ("continuous",), "centralized": DOMAINS,
+    "policy": DOMAINS,  # a learned partner: the frozen policy of a finished run (opponent.path)
+    "self": DOMAINS,  # self-play: every agent is the learner (the multi-agent learners)
+}
+ALGO_DOMAINS = {
+    "dqn": ("discrete",), "trpo": DOMAINS, "ppo": DOMAINS,
+    "ippo": DOMAINS, "mappo": DOMAINS, "iql": ("discrete",), "vdn": ("discrete",), "qmix": ("discrete",),
+}
 LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
 KEEP_CHECKPOINT = ("final", "all")
 # Set by the top level (`noise`) and the reward group, so they are not env-group fields.
@@ -58,12 +65,16 @@ RewardSchema = _mutable_schema("RewardSchema", RewardParams, [("name", str, fiel
 
 @dataclass
 class OpponentSchema:
-    """Who plays the other agent(s): a scripted opponent by name, or ``centralized`` (the learner plays all)."""
+    """Who plays the other agent(s): a scripted opponent by name, a learned partner (``policy``: the frozen policy
+    of the run folder ``path``), ``centralized`` (the learner plays all through one joint action) or ``self``
+    (every agent is the learner: the multi-agent learners)."""
 
     name: str = MISSING
     ego: int = 0  # the agent the learner plays (ego views)
     end_on_ego_done: bool = False  # end the learner's episode when the ego is done, not when the world is
     params: dict[str, Any] = field(default_factory=dict)  # the opponent's own settings (planner radii, ...)
+    path: str = ""  # opponent=policy: the run folder whose policy.pt plays the other agent(s)
+    sample: bool = False  # opponent=policy: sample its actions (ε-greedy / the distribution) instead of greedy
 
 
 @dataclass
@@ -114,9 +125,7 @@ def with_schema_defaults(cfg: DictConfig) -> DictConfig:
 
 def register_schemas() -> None:
     """Put the schemas in Hydra's ConfigStore (idempotent)."""
-    from sidewalk.algos.dqn import DQNConfig
-    from sidewalk.algos.ppo import PPOConfig
-    from sidewalk.algos.trpo import TRPOConfig
+    from sidewalk.algos import ALGORITHMS
 
     store = ConfigStore.instance()
     store.store(name="experiment_schema", node=ExperimentSchema)
@@ -125,8 +134,8 @@ def register_schemas() -> None:
     store.store(group="schema/reward", name="reward", node=RewardSchema)
     store.store(group="schema/opponent", name="opponent", node=OpponentSchema)
     store.store(group="schema/logger", name="logger", node=LoggerSchema)
-    for name, cls in (("dqn", DQNConfig), ("trpo", TRPOConfig), ("ppo", PPOConfig)):
-        store.store(group="schema/algo", name=name, node=cls)
+    for name in ALGORITHMS:
+        store.store(group="schema/algo", name=name, node=ALGORITHMS[name].Config)
 
 
 @dataclass(frozen=True)
@@ -202,6 +211,18 @@ def validate(cfg: DictConfig) -> Experiment:
     if domain not in ALGO_DOMAINS[algo_name]:
         valid = [name for name, domains in ALGO_DOMAINS.items() if domain in domains]
         raise ValueError(f"algo={algo_name} does not fit env={domain}; valid algos there: {', '.join(valid)}")
+    multi_agent = ALGORITHMS[algo_name].multi_agent
+    if multi_agent and opponent != "self":
+        raise ValueError(
+            f"algo={algo_name} trains every agent (self-play): use opponent=self, not opponent={opponent}; "
+            f"single-agent learners for opponent={opponent}: "
+            f"{', '.join(n for n in ALGO_DOMAINS if not ALGORITHMS[n].multi_agent and domain in ALGO_DOMAINS[n])}"
+        )
+    if opponent == "self" and not multi_agent:
+        raise ValueError(
+            f"opponent=self trains every agent, which algo={algo_name} (single-agent) cannot; multi-agent learners "
+            f"for env={domain}: {', '.join(n for n in ALGO_DOMAINS if ALGORITHMS[n].multi_agent and domain in ALGO_DOMAINS[n])}"
+        )
     check_choice("logger", cfg.logger.name, LOGGERS)
     check_known_keys(cfg, ALGORITHMS[algo_name].Config)
 
@@ -238,6 +259,15 @@ def validate(cfg: DictConfig) -> Experiment:
         )
     ego = cfg.opponent.ego
     check_int("opponent.ego", ego, 0, n_agents - 1)
+    opponent_params = dict(OmegaConf.to_container(cfg.opponent.params, resolve=True))
+    if opponent == "policy":
+        from sidewalk.opponents.policy import check_partner
+
+        # Before any compute: the folder exists, holds a policy, and was trained on this world.
+        check_partner(str(cfg.opponent.get("path", "")), domain, env_params, ego)
+        opponent_params = {"path": str(cfg.opponent.path), "sample": bool(cfg.opponent.get("sample", False))}
+    elif cfg.opponent.get("path", ""):
+        raise ValueError(f"opponent.path={cfg.opponent.path!r} applies only to opponent=policy, not opponent={opponent}")
     algo_cls = ALGORITHMS[algo_name].Config
     algo = OmegaConf.to_object(cfg.algo) if OmegaConf.get_type(cfg.algo) is algo_cls else algo_cls(**cfg.algo)
     logger = OmegaConf.to_object(cfg.logger) if OmegaConf.get_type(cfg.logger) is LoggerSchema else LoggerSchema(**cfg.logger)
@@ -245,7 +275,7 @@ def validate(cfg: DictConfig) -> Experiment:
         domain=domain,
         env_params=env_params,
         opponent=opponent,
-        opponent_params=dict(OmegaConf.to_container(cfg.opponent.params, resolve=True)),
+        opponent_params=opponent_params,
         ego=ego,
         end_on_ego_done=bool(cfg.opponent.end_on_ego_done),
         algo=algo,

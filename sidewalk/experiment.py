@@ -7,7 +7,8 @@
 - ``summary.json``: the final evaluation as flat SPEC §6 keys plus seed, wall clock, versions, git revision;
 - ``checkpoint.pt`` (and the generation before it, ``checkpoint.prev.pt``): everything needed to continue exactly
   where the run was (``resume=true``), kept after the run only with ``keep_checkpoint=all``;
-- ``policy.pt``: the learner's networks, all that a report or a render replays;
+- ``policy.pt``: the learner's networks and the world they learned in (written at every checkpoint and at the end),
+  all that a report, a render or a learned partner (``opponent=policy``, ``runners/crossplay.py``) replays;
 - the logger's own files (``logs/``).
 
 Files are replaced atomically (written beside, then renamed), so a crash or a kill never leaves one half-written,
@@ -44,6 +45,7 @@ from sidewalk.algos.base import Algorithm
 from sidewalk.config import Experiment
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
+from sidewalk.opponents.policy import policy_description
 from sidewalk.run_folder import (
     METRICS,
     SUMMARY,
@@ -56,7 +58,7 @@ from sidewalk.run_folder import (
     save_checkpoint,
     save_policy,
 )
-from sidewalk.views import CentralizedView, EgoView
+from sidewalk.views import CentralizedView, EgoView, SelfPlayView
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds draw from a stream of their own, the same at every evaluation
 WALL_CLOCK_COLUMNS = ("time_s", "frames_per_s")
@@ -64,11 +66,13 @@ WALL_CLOCK_COLUMNS = ("time_s", "frames_per_s")
 
 def make_view(experiment: Experiment, num_envs: int, seed: int) -> EnvBase:
     """The env a learner trains or is evaluated on: the core env of ``num_envs`` worlds seen through the
-    experiment's view (ego against a scripted opponent, or centralized)."""
+    experiment's view (ego against a scripted opponent or a learned partner, centralized, or self-play)."""
     core_cls = DiscreteSidewalkEnv if experiment.domain == "discrete" else ContinuousSidewalkEnv
     core = core_cls(num_envs, device=experiment.device, seed=seed, params=experiment.env_params)
     if experiment.opponent == "centralized":
         return CentralizedView(core)
+    if experiment.opponent == "self":
+        return SelfPlayView(core)
     return EgoView(
         core,
         opponent=experiment.opponent,
@@ -183,7 +187,10 @@ def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:
     collided = (
         batch.get(("next", "world", "info", "collided_agent")) | batch.get(("next", "world", "info", "collided_wall"))
     ).squeeze(-1)[done]
-    metrics["train/return"] = float(batch.get(("next", "episode_reward")).squeeze(-1)[done].mean())
+    episode_reward = batch.get(("next", "episode_reward"), None)
+    if episode_reward is None:  # self-play: every agent's own return, averaged over the agents
+        episode_reward = batch.get(("next", "agents", "episode_reward")).mean(-2)
+    metrics["train/return"] = float(episode_reward.squeeze(-1)[done].mean())
     metrics["train/success_rate"] = float(reached.float().mean())
     metrics["train/team_success_rate"] = float(reached.all(-1).float().mean())
     if ego is not None:
@@ -331,6 +338,7 @@ class Trial:
                 "rows": rows,
             }
             save_checkpoint(self.run_dir, state)
+            save_policy(self.run_dir, self._policy_state(algo))  # a partner can play the run while it trains
 
         started = time.perf_counter() - elapsed_before
         bar = tqdm(total=exp.iterations, initial=start_iteration, disable=not progress, desc="train", unit="it")
@@ -390,7 +398,7 @@ class Trial:
         bar.close()
         if exp.keep_checkpoint == "all":
             checkpoint(iteration, time.perf_counter() - started)
-        save_policy(self.run_dir, algo.policy_state_dict())
+        save_policy(self.run_dir, self._policy_state(algo))
         collector.shutdown()
 
         last_eval = {key[len("eval/"):]: value for key, value in rows[-1].items() if key.startswith("eval/")}
@@ -411,6 +419,10 @@ class Trial:
             drop_training_state(self.run_dir)
         self._history("finished", iteration=iteration)
         return summary
+
+    def _policy_state(self, algo: Algorithm) -> dict[str, Any]:
+        """``policy.pt``: the networks and the description of the world they learned in, all a partner needs."""
+        return {**algo.policy_state_dict(), "description": policy_description(self.experiment)}
 
     def _history(self, event: str, **details: Any) -> None:
         if self.config:

@@ -201,7 +201,8 @@ def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> dict[str, Any]:
 
 
 def save_policy(run_dir: Path, modules_state: dict[str, Any]) -> None:
-    """Write ``policy.pt``: the learner's networks (``Algorithm.modules()`` state), small enough to keep."""
+    """Write ``policy.pt``: the learner's networks (``Algorithm.modules()`` state) and what they learned on, small
+    enough to keep."""
     import torch
 
     atomic_write(run_dir / POLICY, lambda tmp: torch.save(modules_state, tmp))

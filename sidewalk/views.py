@@ -5,9 +5,12 @@ Three views of one batched core env (``DiscreteSidewalkEnv`` or ``ContinuousSide
 - ``EgoView(env, opponent, ego)``: one learning agent; the others are played by a scripted opponent. Keys are
   flat single-agent ones, so stock single-agent TorchRL losses (``DQNLoss``, ``ClipPPOLoss``) work unchanged.
 - ``CentralizedView(env)``: the learner plays every agent through one joint action and receives the team reward.
+- ``SelfPlayView(env)``: every agent is the learner (``opponent=self``): TorchRL's multi-agent keys
+  ``("agents", ...)`` as the core has them, with the world's done per agent (see the class), for the multi-agent
+  learners (IPPO, MAPPO, IQL, VDN, QMIX);
 - the all-agents view is the multi-agent core env itself (``make_view("all", env)`` returns it).
 
-Both wrappers are thin ``EnvBase`` subclasses over the core's tensors: one step is a fixed sequence of tensor
+The wrappers are thin ``EnvBase`` subclasses over the core's tensors: one step is a fixed sequence of tensor
 operations for all B worlds, and the specs are built once. They carry the same ``"world"`` group for evaluation
 and plots (every agent, in agent order, batch shape (B, N)):
 
@@ -37,7 +40,7 @@ from sidewalk._checks import check_choice, check_int
 from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, SidewalkEnvBase, swap_in_reset
 from sidewalk.opponents.base import Opponent, env_domain
 
-VIEW_KINDS = ("ego", "centralized", "all")
+VIEW_KINDS = ("ego", "centralized", "self", "all")
 WORLD = "world"
 # Opponent name -> (module, class). Modules are imported on first use, so a planner that is not installed (or not
 # written yet) costs nothing until it is asked for.
@@ -81,11 +84,16 @@ def available_opponents(domain: str | None = None) -> list[str]:
 def make_opponent(
     name: str, env: SidewalkEnvBase, controlled: tuple[int, ...] = (1,), ego: int | None = 0, **kwargs: Any
 ) -> Opponent:
-    """Build the opponent registered as ``name`` for ``env``, playing the ``controlled`` agents against ``ego``.
+    """Build the opponent registered as ``name`` for ``env``, playing the ``controlled`` agents against ``ego``;
+    ``"policy"`` is a learned partner (``sidewalk.opponents.policy.PolicyOpponent``, ``path=RUN_DIR``).
 
     Raises ``ValueError`` for an unknown name (listing the valid ones), a planner module that is missing, or an
     opponent that does not play the env's domain (listing those that do).
     """
+    if name == "policy":  # a learned partner, from the run folder kwargs["path"] (not a scripted opponent)
+        from sidewalk.opponents.policy import PolicyOpponent
+
+        return PolicyOpponent(env, controlled=controlled, ego=ego, **kwargs)
     cls = opponent_class(name)
     domain = env_domain(env)
     if domain not in cls.domains:
@@ -125,6 +133,7 @@ class _SidewalkView(EnvBase):
         self.domain = env_domain(env)
         self._agents_shape = torch.Size((*env.batch_size, env.n_agents))
         self._last: TensorDictBase | None = None
+        self._view_action_key: str | tuple[str, str] = "action"
 
     # ---- specs shared by the views -------------------------------------------------------------------------
 
@@ -175,7 +184,7 @@ class _SidewalkView(EnvBase):
         last = self._last
         if last is None:
             raise RuntimeError(f"{type(self).__name__}.step() was called before reset()")
-        last.set((AGENT_GROUP, "action"), self._joint_action(tensordict.get("action")))
+        last.set((AGENT_GROUP, "action"), self._joint_action(tensordict.get(self._view_action_key)))
         self._before_core_step(last)
         core_out = self.core._step(last)
         self._last = core_out
@@ -423,6 +432,80 @@ class CentralizedView(_SidewalkView):
         return out
 
 
+class SelfPlayView(_SidewalkView):
+    """Every agent is the learner (``opponent=self``): the core's multi-agent keys, for all B worlds.
+
+    Keys (batch shape (B,), agents group (B, N)): ``("agents", "observation")`` (each agent's ego-centric
+    observation), ``("agents", "action")``, ``("agents", "reward")`` (each agent's own reward, cooperative term
+    included), ``("agents", "done"|"terminated"|"truncated")`` and the root ``done``/``terminated``/``truncated``
+    (B, 1), plus the ``"world"`` group (see the module docstring).
+
+    The agents' done flags are the *world's*, expanded to every agent, as in TorchRL's multi-agent examples (VMAS):
+    an agent that arrived or crashed stays in the episode (its actions no longer move it) until every agent is
+    done or the episode times out, so the cooperative reward it gets for the others' arrivals still reaches its
+    learner -- the ego view's default (``end_on_ego_done=False``) for every agent at once. The agents' own outcome
+    flags are in ``("world", "info")``.
+    """
+
+    def __init__(self, env: SidewalkEnvBase) -> None:
+        super().__init__(env)
+        self._view_action_key = (AGENT_GROUP, "action")
+        self._make_spec()
+
+    def _make_spec(self) -> None:
+        core_agents = self.core.observation_spec[AGENT_GROUP]
+        agents_shape = self._agents_shape
+        done = self.core.full_done_spec
+        agent_done = {key: done[AGENT_GROUP, key].clone() for key in ("done", "terminated", "truncated")}
+        self.observation_spec = Composite(
+            {AGENT_GROUP: Composite(observation=core_agents["observation"].clone(), shape=agents_shape,
+                                    device=self.device),
+             WORLD: self._world_spec()},
+            shape=self.batch_size,
+            device=self.device,
+        )
+        self.action_spec = Composite(
+            {AGENT_GROUP: Composite(action=self.core.full_action_spec[AGENT_GROUP, "action"].clone(),
+                                    shape=agents_shape, device=self.device)},
+            shape=self.batch_size,
+            device=self.device,
+        )
+        self.reward_spec = Composite(
+            {AGENT_GROUP: Composite(reward=self.core.full_reward_spec[AGENT_GROUP, "reward"].clone(),
+                                    shape=agents_shape, device=self.device)},
+            shape=self.batch_size,
+            device=self.device,
+        )
+        self.done_spec = Composite(
+            {**{key: done[key].clone() for key in ("done", "terminated", "truncated")},
+             AGENT_GROUP: Composite(agent_done, shape=agents_shape, device=self.device)},
+            shape=self.batch_size,
+            device=self.device,
+        )
+
+    def _joint_action(self, action: torch.Tensor) -> torch.Tensor:
+        return action
+
+    def _output(self, core_out: TensorDictBase, reset: bool) -> TensorDictBase:
+        agents = core_out.get(AGENT_GROUP)
+        reward = (
+            agents.get("reward") if not reset else torch.zeros((*self._agents_shape, 1), device=self.device)
+        )
+        flags = {key: core_out.get(key) for key in ("done", "terminated", "truncated")}
+        per_agent = {key: value.unsqueeze(1).expand(*self._agents_shape, 1) for key, value in flags.items()}
+        group = {"observation": agents.get("observation"), **per_agent}
+        if not reset:
+            group["reward"] = reward
+        return TensorDict._new_unsafe(
+            {
+                AGENT_GROUP: TensorDict._new_unsafe(group, batch_size=self._agents_shape),
+                WORLD: self._world(agents, reward),
+                **flags,
+            },
+            batch_size=self.batch_size,
+        )
+
+
 class ScriptedTeam(TensorDictModuleBase):
     """One scripted opponent playing every agent as one team, seen as an ego view and a policy of it.
 
@@ -475,7 +558,8 @@ def make_view(
     **kwargs: Any,
 ) -> EnvBase:
     """The view ``kind`` of ``env``: ``"ego"`` (``EgoView``; ``opponent`` defaults to ``"random"``, ``kwargs`` go
-    to ``EgoView``), ``"centralized"`` (``CentralizedView``) or ``"all"`` (the multi-agent core env itself).
+    to ``EgoView``), ``"centralized"`` (``CentralizedView``), ``"self"`` (``SelfPlayView``) or ``"all"`` (the
+    multi-agent core env itself).
 
     ``opponent`` and ``ego`` (default 0) apply only to ``"ego"``; giving either to another view is an error, as is
     an opponent that does not play the env's domain.
@@ -501,4 +585,6 @@ def make_view(
         raise TypeError(f"unexpected argument(s) {', '.join(map(repr, kwargs))} for the {kind!r} view")
     if kind == "centralized":
         return CentralizedView(env)
+    if kind == "self":
+        return SelfPlayView(env)
     return env

@@ -292,7 +292,7 @@ def test_make_view_builds_each_kind():
 
 
 def test_make_view_names_the_valid_kinds():
-    with pytest.raises(ValueError, match="'ego', 'centralized', 'all'"):
+    with pytest.raises(ValueError, match="'ego', 'centralized', 'self', 'all'"):
         make_view("joint", core("discrete"))
 
 

@@ -1,17 +1,23 @@
-"""Learners: one file each (dqn, trpo, ppo), each with its dataclass config."""
+"""Learners: one file each, each with its dataclass config. Single-agent (an ego view or the centralized view):
+dqn, trpo, ppo. Multi-agent (every agent learns, ``opponent=self``): ippo, mappo, iql, vdn, qmix."""
 
 from __future__ import annotations
 
 import importlib
 from collections.abc import Iterator, Mapping
 
-from sidewalk.algos.base import AlgoConfig, Algorithm
+from sidewalk.algos.base import AlgoConfig, Algorithm, MultiAgentAlgorithm, MultiAgentConfig
 
 # name -> "module:Class"; a learner's module is imported when it is first asked for.
 _REGISTRY = {
     "dqn": "sidewalk.algos.dqn:DQN",
     "trpo": "sidewalk.algos.trpo:TRPO",
     "ppo": "sidewalk.algos.ppo:PPO",
+    "ippo": "sidewalk.algos.ippo:IPPO",
+    "mappo": "sidewalk.algos.mappo:MAPPO",
+    "iql": "sidewalk.algos.iql:IQL",
+    "vdn": "sidewalk.algos.vdn:VDN",
+    "qmix": "sidewalk.algos.qmix:QMIX",
 }
 
 
@@ -33,4 +39,4 @@ class _Algorithms(Mapping):
 
 ALGORITHMS: Mapping[str, type[Algorithm]] = _Algorithms()
 
-__all__ = ["ALGORITHMS", "AlgoConfig", "Algorithm"]
+__all__ = ["ALGORITHMS", "AlgoConfig", "Algorithm", "MultiAgentAlgorithm", "MultiAgentConfig"]

@@ -19,6 +19,7 @@ from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sidewalk._checks import check_int, check_range
+from sidewalk.envs.base import AGENT_GROUP
 
 
 @dataclass
@@ -73,6 +74,7 @@ class Algorithm(abc.ABC):
 
     Config: ClassVar[type[AlgoConfig]] = AlgoConfig
     uses_replay_buffer: ClassVar[bool] = False
+    multi_agent: ClassVar[bool] = False  # trains every agent on the self-play view (opponent=self)
 
     def __init__(self, config: AlgoConfig, env: EnvBase, device: torch.device | str = "cpu") -> None:
         self.config = config
@@ -128,3 +130,48 @@ class Algorithm(abc.ABC):
         self.load_policy_state_dict(state)
         for name, opt in self.optimizers().items():
             opt.load_state_dict(state["optimizers"][name])
+
+
+@dataclass
+class MultiAgentConfig(AlgoConfig):
+    """Settings every multi-agent learner adds: ``share_params`` -- one set of network weights for every agent (each
+    agent's observation is ego-centric, so one network can play any of them), or one set per agent."""
+
+    share_params: bool = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not isinstance(self.share_params, bool):
+            raise TypeError(f"algo.share_params={self.share_params!r} must be a bool")
+
+
+class MultiAgentAlgorithm(Algorithm):
+    """A learner of every agent at once, on the self-play view (``sidewalk.views.SelfPlayView``, ``opponent=self``).
+
+    Keys are TorchRL's multi-agent ones: ``("agents", "observation")`` (N, *obs) and ``("agents", "action")`` in,
+    ``("agents", "reward")`` and ``("agents", "done"|"terminated")`` (the world's, per agent) out. The unbatched specs
+    below keep the agent dimension first: ``observation_spec.shape == (N, *obs)``, ``action_spec.shape == (N,)``
+    (grid) or ``(N, 2)`` (continuous). ``n_agents`` is N.
+    """
+
+    multi_agent: ClassVar[bool] = True
+    OBSERVATION_KEY: ClassVar[tuple[str, str]] = (AGENT_GROUP, "observation")
+    ACTION_KEY: ClassVar[tuple[str, str]] = (AGENT_GROUP, "action")
+    REWARD_KEY: ClassVar[tuple[str, str]] = (AGENT_GROUP, "reward")
+    DONE_KEY: ClassVar[tuple[str, str]] = (AGENT_GROUP, "done")
+    TERMINATED_KEY: ClassVar[tuple[str, str]] = (AGENT_GROUP, "terminated")
+
+    def __init__(self, config: AlgoConfig, env: EnvBase, device: torch.device | str = "cpu") -> None:
+        if self.ACTION_KEY not in env.full_action_spec.keys(True, True):
+            raise ValueError(
+                f"{type(self).__name__} trains every agent: it needs the self-play view (opponent=self), whose "
+                f"action is {self.ACTION_KEY}; this env's actions are {list(env.full_action_spec.keys(True, True))}"
+            )
+        self.config = config
+        self.device = torch.device(device)
+        self.observation_spec = env.full_observation_spec_unbatched[self.OBSERVATION_KEY]
+        self.action_spec = env.full_action_spec_unbatched[self.ACTION_KEY]
+        self.n_agents = int(self.observation_spec.shape[0])
+        self.discrete_actions = not torch.is_floating_point(self.action_spec.zero())
+        self.frames_seen = 0
+        self._build(env)

@@ -54,7 +54,9 @@ LEARNERS = {
     "sb3-ppo": ("ppo", "sb3"),
 }
 SETUPS = ("defaults", "matched")
-OPPONENTS = tuple(name for name, domains in OPPONENT_DOMAINS.items() if "continuous" in domains)
+OPPONENTS = tuple(
+    name for name, domains in OPPONENT_DOMAINS.items() if "continuous" in domains and name not in ("policy", "self")
+)
 SEEDS = (0, 1, 2)
 NOISE = 0.01
 OURS_SETUP = "conf"  # our learners run the config whatever the peers' setup
