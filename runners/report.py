@@ -5,8 +5,9 @@
     python runners/report.py results/sweeps --x iterations --trajectories 0     # no replay of checkpoints
     python runners/report.py results/sweeps/reference --out results/reference --preamble notes.md
 
-Writes report.md (tables, figures embedded), report.csv (every number in report.md), curves.csv (every plotted
-point) and figures/ into --out (default: report/ inside the single path given, or inside the paths' common
+Writes report.md (tables, figures embedded; the cross-play matrix of any folder with a crossplay.csv under the
+paths, see runners/crossplay.py), report.csv (every number in report.md), curves.csv (every plotted point) and
+figures/ into --out (default: report/ inside the single path given, or inside the paths' common
 folder). Unusable run folders are listed in report.md and skipped. Progress goes to stderr. Exit status: 0, or 1
 when no run could be used, 2 for bad arguments. See the sidewalk.report package.
 """
@@ -75,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     for note in result.notes:
         print(f"report: note: {note}", file=sys.stderr)
-    return 0 if result.conditions else 1
+    return 0 if result.conditions or result.crossplay else 1
 
 
 if __name__ == "__main__":

@@ -208,3 +208,18 @@ def test_policy_opponent_fills_only_its_agents(runs):
     assert (played.get(("agents", "action"))[:, 1] == 3).all()
     assert played.get(("agents", "action")).shape == (8, 2)
     assert isinstance(view.opponent, PolicyOpponent)
+
+
+@pytest.mark.parametrize(
+    ("preset", "domain", "learners"),
+    [("selfplay_discrete", "discrete", "iql,vdn,qmix,ippo,mappo"), ("selfplay_continuous", "continuous", "ippo,mappo")],
+)
+def test_self_play_presets_sweep_every_learner_of_their_domain(preset, domain, learners):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[f"+experiment={preset}"], return_hydra_config=True)
+        jobs = [compose(config_name="config", overrides=[f"+experiment={preset}", f"algo={name}"])
+                for name in learners.split(",")]
+    assert dict(cfg.hydra.sweeper.params) == {"algo": learners, "seed": "0,1,2"}
+    for name, job in zip(learners.split(","), jobs):
+        experiment = validate(job)
+        assert (experiment.domain, experiment.opponent, experiment.algo.name) == (domain, "self", name)

@@ -65,7 +65,9 @@ class Partner:
 
     @property
     def label(self) -> str:
-        return f"{self.algo_name} vs {self.opponent}" if self.opponent != "self" else f"{self.algo_name} self-play"
+        if self.opponent in ("self", "centralized"):
+            return f"{self.algo_name} {'self-play' if self.opponent == 'self' else 'centralized'}"
+        return f"{self.algo_name} vs {self.opponent}"
 
 
 def policy_description(experiment: Any) -> dict[str, Any]:
@@ -87,6 +89,7 @@ def read_partner(path: str | Path, map_location: str | torch.device = "cpu") -> 
     from sidewalk.envs.grid import DiscreteParams
     from sidewalk.envs.rewards import RewardParams
     from sidewalk.envs.unicycle import ContinuousParams
+    from sidewalk.report.runs import policy_file
     from sidewalk.run_folder import POLICY
 
     run_dir = Path(path)
@@ -94,13 +97,16 @@ def read_partner(path: str | Path, map_location: str | torch.device = "cpu") -> 
         raise FileNotFoundError("opponent=policy needs opponent.path=RUN_DIR: the run folder of the partner's policy")
     if not run_dir.is_dir():
         raise FileNotFoundError(f"opponent.path={str(path)!r} is not a folder; give a run folder with a {POLICY}")
-    file = run_dir / POLICY
-    if not file.exists():
+    file = policy_file(run_dir)
+    if file is None:
         raise FileNotFoundError(
             f"opponent.path={str(path)!r} has no {POLICY}: the run has not written one yet (it does at its first "
             "checkpoint and at the end)"
         )
-    state = torch.load(file, map_location=map_location, weights_only=True)
+    if file.name == POLICY:
+        state = torch.load(file, map_location=map_location, weights_only=True)
+    else:  # a run from before policy.pt was written at checkpoints: its own checkpoint (trusted, memory-mapped)
+        state = torch.load(file, map_location=map_location, weights_only=False, mmap=True)["algorithm"]
     described = state.get("description")
     if described is None:  # written before policy.pt described its world: the folder's config.yaml does
         from sidewalk.report.checkpoints import load_experiment

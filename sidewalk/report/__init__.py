@@ -28,6 +28,7 @@ The modules, each importing only those listed above it (``tests/test_report_impo
 - ``tables``: curves, final values with mean ± SE and IQM intervals, ``report.csv``'s rows, Markdown tables;
 - ``checkpoints``: a run's config and learner rebuilt from its folder, its final evaluation replayed;
 - ``figures``: learning curves, the paper's figures and Fig. 10's trajectories, drawn with their report.md lines;
+- ``crossplay``: the cross-play matrix of a ``runners/crossplay.py`` folder, its heatmaps and report.md section;
 - ``claims``: the paper's claims (SPEC §4) held against the runs, a verdict each;
 - ``document``: ``write_report``, which puts ``report.md`` together and writes the files.
 

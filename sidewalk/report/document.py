@@ -1,5 +1,6 @@
 """``report.md`` assembled from its sections, and the report's files written: ``report.md``, ``report.csv`` (every
-number in it) and ``curves.csv`` (every plotted point); the figures come from ``sidewalk.report.figures``."""
+number in it) and ``curves.csv`` (every plotted point); the figures come from ``sidewalk.report.figures`` and, for
+a cross-play matrix found under the paths, ``sidewalk.report.crossplay``."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import datetime
 import logging
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,7 @@ from sidewalk.report.conditions import (
     group_conditions,
     peer_keys,
 )
+from sidewalk.report.crossplay import crossplay_sections, find_crossplay
 from sidewalk.report.figures import family_sections, paper_figure_section, trajectory_section
 from sidewalk.report.runs import (
     CONFIG,
@@ -48,6 +50,7 @@ class ReportResult:
     skipped: list[Skipped]
     notes: list[str]
     conditions: list[Condition]
+    crossplay: list[Path] = field(default_factory=list)  # cross-play folders whose matrix the report includes
 
 
 def write_report(
@@ -75,9 +78,11 @@ def write_report(
     if not paths:
         raise ValueError("give at least one run folder or sweep folder")
     folders = find_run_folders(paths)
-    if not folders:
+    crossplay = find_crossplay(paths)
+    if not folders and not crossplay:
         raise ValueError(
-            f"no run folder (a folder with {CONFIG} and {METRICS}) under {', '.join(map(str, paths))}"
+            f"no run folder (a folder with {CONFIG} and {METRICS}) or cross-play matrix under "
+            f"{', '.join(map(str, paths))}"
         )
     if out is None:
         base = paths[0] if len(paths) == 1 else Path(os.path.commonpath([p.resolve() for p in paths]))
@@ -126,6 +131,7 @@ def write_report(
         )
     md += trajectory_section(conditions, settings, figures_dir, figures, notes)
     md += family_sections(conditions, settings, figures_dir, figures, numbers, curves_rows)
+    md += crossplay_sections(crossplay, figures_dir, out, figures, numbers)
     md += _statistics_section(settings)
 
     report_md = out / "report.md"
@@ -147,7 +153,7 @@ def write_report(
         ],
     ).to_csv(out / "curves.csv", index=False)
     log.info("wrote %s (%d figure(s))", report_md, len(figures))
-    return ReportResult(out, report_md, figures, skipped, notes, conditions)
+    return ReportResult(out, report_md, figures, skipped, notes, conditions, crossplay)
 
 
 def _runs_section(conditions: Sequence[Condition], numbers: NumberLog, out: Path) -> list[str]:

@@ -1,0 +1,109 @@
+"""Cross-play: every trained policy (rows) with every partner (columns) on the same seeded evaluation worlds.
+
+    python runners/crossplay.py results/sweeps/dqn_random results/sweeps/iql_self --out results/crossplay
+    python runners/crossplay.py RUN_DIR... --partners random,dijkstra,OTHER_RUN_DIR --episodes 256 --seed 0
+    python runners/crossplay.py --redraw results/crossplay       # figures and report.md again (after notes.md)
+
+A RUN_DIR is a run folder with policy.pt, or a sweep folder standing for every run in it. Partners (default
+scripted,rows): scripted opponents by name, `scripted` (every one of the rows' domain), `rows` (every row's run),
+run or sweep folders. A row plays the agent it trained as; the partner plays every other agent; both act greedily.
+Every cell plays one episode in each of --episodes worlds seeded --seed + 1000003 (the stream a run of that seed
+is evaluated on), in the first row's training world at --noise (default: the rows' training noise when they agree).
+
+Writes into --out: crossplay.csv (one row per pairing), crossplay.json (how it was made), figures/ (heatmaps of
+success, collisions and team success, by run and by condition) and report.md (the section runners/report.py also
+includes). Put what the matrix shows in --out/notes.md and --redraw. Exit status: 0, or 2 for bad arguments or a
+pairing that cannot be played (a missing policy.pt, an unknown partner, a run of another domain or scenario).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import logging
+import shlex
+import sys
+import time
+from pathlib import Path
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="\n".join(__doc__.splitlines()[2:]),
+    )
+    parser.add_argument("runs", nargs="*", metavar="RUN_DIR", help="run folders (with policy.pt) or sweep folders")
+    parser.add_argument(
+        "--partners",
+        default="scripted,rows",
+        help="comma-separated: scripted opponents' names, 'scripted', 'rows', run or sweep folders "
+        "(default: scripted,rows)",
+    )
+    parser.add_argument("--out", help="output folder (required unless --redraw)")
+    parser.add_argument("--episodes", type=int, default=256, help="episodes per cell, one per world (default 256)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation worlds (default 0)")
+    parser.add_argument("--noise", type=float, help="evaluation noise (default: the rows' training noise)")
+    parser.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1: small networks)")
+    parser.add_argument("--redraw", metavar="DIR", help="only redraw DIR's figures and report.md from its CSV")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="crossplay: %(message)s", stream=sys.stderr)
+
+    from sidewalk.report.crossplay import CROSSPLAY_CSV, CROSSPLAY_JSON, write_crossplay_report
+
+    if args.redraw:
+        if args.runs:
+            parser.error("--redraw takes no RUN_DIR")
+        if not (Path(args.redraw) / CROSSPLAY_CSV).exists():
+            print(f"error: {args.redraw} has no {CROSSPLAY_CSV}", file=sys.stderr)
+            return 2
+        print(f"crossplay: {write_crossplay_report(args.redraw)}", file=sys.stderr)
+        return 0
+    if not args.runs:
+        parser.error("give at least one RUN_DIR (or --redraw DIR)")
+    if not args.out:
+        parser.error("--out DIR is required")
+    if args.episodes < 1:
+        parser.error(f"--episodes={args.episodes} must be at least 1")
+
+    import torch
+
+    from sidewalk.crossplay import run_crossplay
+    from sidewalk.experiment import package_versions
+    from sidewalk.run_folder import atomic_write, git_revision
+
+    torch.set_num_threads(args.threads)
+    start = time.perf_counter()
+    try:
+        matrix = run_crossplay(
+            args.runs, args.partners, episodes=args.episodes, seed=args.seed, noise=args.noise,
+            device=args.device, show_progress=not args.no_progress,
+        )
+    except ValueError as error:  # CrossplayError: a missing policy.pt, an unknown partner, a mismatching run
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "command": "python runners/crossplay.py " + shlex.join(sys.argv[1:] if argv is None else argv),
+        "created": datetime.datetime.now().isoformat(timespec="seconds"),
+        **matrix.meta,
+        "wall_clock_s": round(time.perf_counter() - start, 1),
+        "git_revision": git_revision(),
+        "versions": package_versions(),
+    }
+    atomic_write(out / CROSSPLAY_CSV, lambda tmp: matrix.frame.to_csv(tmp, index=False))
+    atomic_write(out / CROSSPLAY_JSON, lambda tmp: tmp.write_text(json.dumps(meta, indent=2) + "\n"))
+    report = write_crossplay_report(out)
+    print(
+        f"crossplay: {out / CROSSPLAY_CSV} ({len(matrix.frame)} cells, {meta['wall_clock_s']:.1f} s), {report}",
+        file=sys.stderr,
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

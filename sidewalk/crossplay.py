@@ -1,0 +1,542 @@
+"""Cross-play: every learned policy (a row) playing with every partner (a column) on the same seeded worlds.
+
+``crossplay(rows, partners, ...)`` evaluates each pairing and returns the long table (one row per pairing) that
+``runners/crossplay.py`` writes as ``crossplay.csv`` and ``sidewalk.report.crossplay`` draws; the coordination
+literature's zero-shot test (Other-Play): does a policy still succeed with a partner it never trained with?
+
+The pairing:
+
+- a row is a run folder (its ``policy.pt``, or the ``checkpoint.pt`` of a run from before ``policy.pt``); it plays the agent it trained as: its ego for a single-agent
+  learner, agent 0 for a centralized or self-play learner (both were trained as every agent);
+- a column is a scripted opponent of the domain (``random``, ``dijkstra``/``prm``) or a learned partner (a run
+  folder, ``sidewalk.opponents.policy.PolicyOpponent``); it plays every other agent. By default the columns are
+  the domain's scripted opponents and every row, so the matrix holds each run with itself (self-pairs), with the
+  other seeds of its condition (cross-seed pairs) and with the other conditions;
+- both sides act greedily (the evaluation policy: greedy Q, the distribution's mode), as in the runs' own
+  evaluations;
+- every cell plays one episode in each of ``episodes`` worlds of the core env seeded ``seed + EVAL_SEED_OFFSET``
+  (the stream a run of seed ``seed`` is evaluated on, so a run paired with its own training opponent, at the same
+  seed, episodes and noise, reproduces its ``summary.json``); the world is the first row's training world (its
+  domain, scenario, rewards and time limit) at the noise given, by default the rows' training noise when they all
+  agree.
+
+Checks before any evaluation: every row and learned partner has a ``policy.pt`` and shares the first row's domain,
+scenario and observation (``check_partner``; noise, rewards, time limit may differ), every partner name is a
+scripted opponent of that domain. A learned partner that cannot play the other agent's role (a single-agent
+learner in a layout without the half-turn symmetry that maps its role onto the other's) leaves that cell empty
+with the reason in the ``skipped`` column rather than stopping the matrix.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+
+from sidewalk.experiment import EVAL_SEED_OFFSET
+from sidewalk.opponents.base import ACTION_KEY, Opponent
+from sidewalk.opponents.policy import (
+    OBSERVATION_KEY,
+    Partner,
+    PartnerMismatch,
+    PolicyOpponent,
+    check_partner,
+    read_partner,
+)
+
+SCRIPTED = "scripted"  # --partners shorthand: the domain's scripted opponents
+ROWS = "rows"  # --partners shorthand: every row's run folder
+DEFAULT_PARTNERS = (SCRIPTED, ROWS)
+BOOKKEEPING_KEYS = ("seed", "resume", "device", "torch_threads", "checkpoint_every", "logger")  # as the report's
+# The CSV's columns, in order (see ``crossplay``'s docstring).
+COLUMNS = (
+    "row_run",
+    "row_label",
+    "row_seed",
+    "row_agent",
+    "partner",
+    "partner_label",
+    "partner_kind",
+    "partner_seed",
+    "self_pair",
+    "same_condition",
+    "success",
+    "partner_success",
+    "collision_rate",
+    "partner_collision_rate",
+    "team_success",
+    "return",
+    "episodes",
+    "skipped",
+)
+METRICS = {  # CSV column -> key of sidewalk.evaluate's metrics in the row's ego view
+    "success": "ego/success_rate",
+    "partner_success": "other/success_rate",
+    "collision_rate": "ego/collision_rate",
+    "partner_collision_rate": "other/collision_rate",
+    "team_success": "team/success_rate",
+    "return": "ego/return",
+    "episodes": "episodes",
+}
+
+
+class CrossplayError(ValueError):
+    """A cross-play matrix that cannot be evaluated (the message names the run or partner and why)."""
+
+
+@dataclass
+class Player:
+    """A learned policy of the matrix: a row, a partner, or both."""
+
+    path: Path  # the run folder, as given
+    partner: Partner  # what its policy.pt says (sidewalk.opponents.policy.read_partner)
+    seed: int | None  # the run's seed (config.yaml), None when the folder does not say
+    condition: str  # its config without the seed and bookkeeping keys, as JSON: seeds of one condition share it
+    label: str = ""  # the condition's label: "dqn vs dijkstra", plus what sets it apart from same-named ones
+
+    @property
+    def agent(self) -> int:
+        """The agent it plays as a row: the one it trained as (agent 0 for a learner of every agent)."""
+        return 0 if self.partner.ego is None else self.partner.ego
+
+
+@dataclass
+class Column:
+    """A partner: a scripted opponent (``player`` None) or a learned policy."""
+
+    name: str  # the opponent's name, or the run folder as given
+    player: Player | None = None
+
+    @property
+    def kind(self) -> str:
+        return "scripted" if self.player is None else "learned"
+
+    @property
+    def label(self) -> str:
+        return self.name if self.player is None else self.player.label
+
+
+def find_runs(paths: Sequence[str | Path]) -> list[Path]:
+    """The run folders named by ``paths``: a folder with a ``policy.pt`` (or, from before runs wrote one, a
+    ``checkpoint.pt``) is one; a folder holding run folders (a sweep) stands for those, in sorted order. Raises
+    ``CrossplayError`` naming a path that is missing, a run folder without a policy (a run that failed or has not
+    reached its first checkpoint) or a folder with no run."""
+    from sidewalk.report.runs import POLICY_FILES, find_run_folders, policy_file
+
+    found: list[Path] = []
+    for path in map(Path, paths):
+        if not path.is_dir():
+            raise CrossplayError(f"{path} is not a folder; give run folders (with {POLICY_FILES}) or sweep folders")
+        if policy_file(path) is not None:
+            found.append(path)
+            continue
+        folders = find_run_folders([path])
+        if not folders:
+            raise CrossplayError(
+                f"{path} is neither a run folder (with {POLICY_FILES}) nor a folder holding run folders"
+            )
+        for folder in folders:
+            if policy_file(folder) is None:
+                raise CrossplayError(
+                    f"{folder} has no {POLICY_FILES}: the run failed or has not reached its first checkpoint; "
+                    "leave it out or let it finish"
+                )
+            found.append(folder)
+    unique: list[Path] = []
+    for path in found:  # a run named twice (itself and its sweep) is one row
+        if all(path.resolve() != seen.resolve() for seen in unique):
+            unique.append(path)
+    return unique
+
+
+def load_player(path: str | Path) -> Player:
+    """The learned policy in the run folder ``path`` (see ``find_runs``), its seed and condition."""
+    from omegaconf import OmegaConf
+
+    from sidewalk.report.runs import flatten
+    from sidewalk.run_folder import CONFIG
+
+    path = Path(path)
+    try:
+        partner = read_partner(path)
+    except FileNotFoundError as error:
+        raise CrossplayError(f"{path}: {error}") from error
+    seed, flat = None, None
+    if (path / CONFIG).exists():
+        config = OmegaConf.to_container(OmegaConf.load(path / CONFIG), resolve=True)
+        seed = int(config["seed"]) if "seed" in config else None
+        flat = {
+            key: value for key, value in flatten(config).items()
+            if not any(key == k or key.startswith(f"{k}.") for k in BOOKKEEPING_KEYS)
+        }
+    if flat is None:  # policy.pt alone: its own description of the learner and its world
+        flat = {"algo": dataclasses.asdict(partner.algo_config), "env": dataclasses.asdict(partner.env_params),
+                "opponent": partner.opponent, "ego": partner.ego}
+    return Player(path, partner, seed, json.dumps(sorted(flat.items()), default=str))
+
+
+def learner_name(partner: Partner) -> str:
+    """"dqn vs dijkstra", "dqn centralized", "iql self-play" (``Partner.label``)."""
+    return partner.label
+
+def label_players(players: Sequence[Player]) -> None:
+    """Label each player by its learner (``learner_name``: "dqn vs dijkstra", "iql self-play"), plus the config
+    values that tell apart conditions sharing that name (``noise=0.1``)."""
+    conditions: dict[str, dict[str, Any]] = {}
+    for player in players:
+        conditions.setdefault(player.condition, dict(json.loads(player.condition)))
+    by_name: dict[str, list[str]] = {}
+    for player in players:
+        names = by_name.setdefault(learner_name(player.partner), [])
+        if player.condition not in names:
+            names.append(player.condition)
+    labels: dict[str, str] = {}
+    for name, keys in by_name.items():
+        if len(keys) == 1:
+            labels[keys[0]] = name
+            continue
+        flats = [conditions[key] for key in keys]
+        differ = sorted(k for k in set().union(*flats) if len({json.dumps(f.get(k), default=str) for f in flats}) > 1)
+        for key, flat in zip(keys, flats):
+            shown = ", ".join(f"{k.split('.', 1)[-1] if k.startswith(('env.', 'algo.')) else k}={flat.get(k)}"
+                              for k in differ[:3])
+            labels[key] = f"{name}, {shown}" + (f", +{len(differ) - 3} more" if len(differ) > 3 else "")
+    for player in players:
+        player.label = labels[player.condition]
+
+
+def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], domain: str) -> list[Column]:
+    """The columns of the matrix from ``--partners`` (a comma-separated string or a list; default
+    ``scripted,rows``): a scripted opponent's name, ``scripted`` (every scripted opponent of ``domain``), ``rows``
+    (every row's run), or a run or sweep folder (its learned policies). Rows' folders given again share their
+    ``Player``. Raises ``CrossplayError`` for an unknown name or an opponent of another domain."""
+    from sidewalk.views import OPPONENTS, available_opponents
+
+    if spec is None:
+        items = list(DEFAULT_PARTNERS)
+    elif isinstance(spec, str):
+        items = [item.strip() for item in spec.split(",") if item.strip()]
+    else:
+        items = [str(item) for item in spec]
+    if not items:
+        raise CrossplayError("--partners is empty; give scripted opponents' names and/or run folders")
+    scripted = available_opponents(domain)
+    known = {player.path.resolve(): player for player in rows}
+    columns: list[Column] = []
+
+    def add(column: Column) -> None:
+        if all(column.name != c.name and (column.player is None or c.player is not column.player) for c in columns):
+            columns.append(column)
+
+    for item in items:
+        if item == SCRIPTED:
+            for name in scripted:
+                add(Column(name))
+        elif item == ROWS:
+            for player in rows:
+                add(Column(str(player.path), player))
+        elif item in scripted:
+            add(Column(item))
+        elif item in OPPONENTS:
+            raise CrossplayError(
+                f"partner {item!r} does not play the {domain} domain of the rows; "
+                f"scripted opponents of the {domain} domain: {', '.join(scripted)}"
+            )
+        elif Path(item).is_dir():
+            for path in find_runs([item]):
+                player = known.get(path.resolve()) or load_player(path)
+                known[path.resolve()] = player
+                add(Column(str(path), player))
+        else:
+            raise CrossplayError(
+                f"unknown partner {item!r}: not a scripted opponent of the {domain} domain "
+                f"({', '.join(scripted)}), not {SCRIPTED!r} or {ROWS!r}, and not a folder"
+            )
+    return columns
+
+
+def evaluation_world(rows: Sequence[Player], noise: float | None) -> Any:
+    """The env parameters every cell is played in: the first row's training world, at ``noise`` (default: the
+    rows' training noise, which must then agree)."""
+    if not rows:
+        raise CrossplayError("give at least one run folder (a row)")
+    if noise is None:
+        noises = sorted({float(player.partner.env_params.noise) for player in rows})
+        if len(noises) > 1:
+            raise CrossplayError(
+                f"the rows were trained at different noise levels ({', '.join(f'{n:g}' for n in noises)}): "
+                "give --noise to evaluate every cell at one"
+            )
+        noise = noises[0]
+    return dataclasses.replace(rows[0].partner.env_params, noise=float(noise))
+
+
+def check_players(players: Sequence[Player], world: Any, reference: Player) -> None:
+    """Every learned policy plays in ``world`` (the first row's domain, scenario and observation), else
+    ``CrossplayError`` naming the run, before anything is evaluated."""
+    domain = reference.partner.domain
+    for player in players:
+        try:
+            check_partner(player.path, domain, world, ego=None, controlled=[])
+        except PartnerMismatch as error:
+            raise CrossplayError(
+                f"{player.path} cannot be paired with {reference.path} (the first row, whose world every cell is "
+                f"played in): {error}"
+            ) from error
+
+
+def cell_problem(row: Player, column: Column, world: Any) -> str:
+    """Why ``column`` cannot play every agent but ``row``'s in ``world`` ("" when it can)."""
+    if column.player is None:
+        return ""
+    others = [agent for agent in range(_n_agents(row.partner.domain, world)) if agent != row.agent]
+    try:
+        check_partner(column.player.path, row.partner.domain, world, ego=row.agent, controlled=others)
+    except PartnerMismatch as error:
+        return str(error)
+    return ""
+
+
+def _core_class(domain: str):
+    from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
+
+    return DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
+
+
+def _n_agents(domain: str, world: Any) -> int:
+    return _core_class(domain).layout_for(world).n_agents
+
+
+def distinct_rows(flat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(the first row of each distinct row of ``flat`` (B, D), the distinct row of every row), exactly.
+
+    Rows are told apart by one random projection (a sort of B numbers, where ``torch.unique(dim=0)`` sorts B rows
+    of D), checked to reproduce every row; a collision, that never happens in practice, falls back to the sort."""
+    if bool((flat == flat[:1]).all()):  # noise 0, deterministic players: every world plays the same episode
+        return torch.zeros(1, dtype=torch.long, device=flat.device), flat.new_zeros(flat.shape[0], dtype=torch.long)
+    values = flat.to(torch.float64)
+    weights = torch.rand(values.shape[1], dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    _, inverse = torch.unique(values @ weights.to(values.device), return_inverse=True)
+    first_of = torch.full((int(inverse.max()) + 1,), flat.shape[0], dtype=torch.long, device=flat.device)
+    first_of.scatter_reduce_(0, inverse, torch.arange(flat.shape[0], device=flat.device), reduce="amin")
+    if not torch.equal(flat[first_of][inverse], flat):
+        _, inverse = torch.unique(flat, dim=0, return_inverse=True)
+        first_of = torch.full((int(inverse.max()) + 1,), flat.shape[0], dtype=torch.long, device=flat.device)
+        first_of.scatter_reduce_(0, inverse, torch.arange(flat.shape[0], device=flat.device), reduce="amin")
+    return first_of, inverse
+
+
+class DistinctPlayer(Opponent):
+    """A learned player (a greedy ``PolicyOpponent``) run once per distinct observation of the worlds, as
+    ``sidewalk.evaluate.act_on_distinct`` runs a policy: its actions are a function of every agent's observation in
+    that world alone, so worlds that look alike get the same actions. At noise 0 two deterministic players (or one
+    and the Dijkstra agent) play the same episode in every world, so a cell costs one world's networks, not 256."""
+
+    def __init__(self, player: PolicyOpponent) -> None:
+        if player.sample:
+            raise ValueError("a sampling player acts differently in worlds that look alike: run it on every world")
+        super().__init__(player.env, controlled=player.controlled, ego=player.ego)
+        self.player = player
+        self.in_keys = [OBSERVATION_KEY]
+        self._zero_action = player.env.full_action_spec[ACTION_KEY].zero()
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        observation = tensordict.get(OBSERVATION_KEY)
+        batch = observation.shape[0]
+        first_of, inverse = distinct_rows(observation.reshape(batch, -1))
+        placeholder = self._zero_action[first_of]  # the player fills in its agents' columns of a joint action
+        seen = TensorDict({OBSERVATION_KEY: observation[first_of], ACTION_KEY: placeholder},
+                          batch_size=[first_of.numel()])
+        acted = self.player(seen).get(ACTION_KEY)[inverse]  # (B, N, ...): the controlled agents' columns set
+        joint = tensordict.get(ACTION_KEY, None)
+        joint = acted if joint is None else joint.clone()
+        joint.index_copy_(1, self._controlled_index, acted.index_select(1, self._controlled_index).to(joint.dtype))
+        tensordict.set(ACTION_KEY, joint)
+        return tensordict
+
+
+class LearnedAgent(TensorDictModuleBase):
+    """A learned policy acting for the ego of an ``EgoView``: its player (controlling the ego alone) reads every
+    agent's observation from the view's last core output, which a centralized or self-play learner needs, and the
+    ego's share of its action is the view's action.
+
+    It acts on all worlds at once: evaluate it with ``deterministic=False`` (``act_on_distinct`` would hand it a
+    subset of worlds that the view's output does not match); it is greedy all the same.
+    """
+
+    def __init__(self, view: Any, player: Opponent) -> None:
+        super().__init__()
+        if list(player.controlled) != [view.ego]:
+            raise ValueError(f"the player controls agents {player.controlled}; the view's ego is {view.ego}")
+        self.player = player
+        self._view = [view]  # a list: the view is not a submodule of its own policy
+        self.in_keys = ["observation"]
+        self.out_keys = ["action"]
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        observation = self._view[0]._last.get(OBSERVATION_KEY)
+        joint = self.player(TensorDict({OBSERVATION_KEY: observation}, batch_size=observation.shape[:1]))
+        tensordict.set("action", joint.get(ACTION_KEY).select(1, self._view[0].ego))
+        return tensordict
+
+
+class Arena:
+    """The evaluation worlds of a matrix: one core env of ``episodes`` worlds per agent a row plays, and each
+    learned player built once on it (a row for its agent, a partner for every other agent), so a matrix rebuilds
+    no network per cell. Every evaluation reseeds and resets the whole core, so a cell's worlds do not depend on
+    the cells before it."""
+
+    def __init__(self, domain: str, world: Any, episodes: int, seed: int, device: str = "cpu") -> None:
+        self.domain, self.world, self.episodes, self.device = domain, world, episodes, device
+        self.world_seed = seed + EVAL_SEED_OFFSET
+        self._cores: dict[int, Any] = {}
+        self._players: dict[tuple[str, int, bool], DistinctPlayer] = {}
+
+    def core(self, ego: int):
+        if ego not in self._cores:
+            self._cores[ego] = _core_class(self.domain)(
+                self.episodes, device=self.device, seed=self.world_seed, params=self.world
+            )
+        return self._cores[ego]
+
+    def _player(self, player: Player, ego: int, as_row: bool) -> DistinctPlayer:
+        key = (str(player.path.resolve()), ego, as_row)
+        if key not in self._players:
+            core = self.core(ego)
+            controlled = (ego,) if as_row else tuple(a for a in range(core.n_agents) if a != ego)
+            self._players[key] = DistinctPlayer(
+                PolicyOpponent(core, controlled=controlled, ego=None if as_row else ego, path=player.path)
+            )
+        return self._players[key]
+
+    def evaluate(self, row: Player, column: Column) -> dict[str, float]:
+        """Metrics (``sidewalk.evaluate``'s keys, the row's agent as ego) of ``row`` with ``column`` playing every
+        other agent."""
+        from sidewalk.evaluate import evaluate
+        from sidewalk.views import EgoView, make_opponent
+
+        ego = row.agent
+        core = self.core(ego)
+        if column.player is None:
+            others = tuple(agent for agent in range(core.n_agents) if agent != ego)
+            opponent = make_opponent(column.name, core, controlled=others, ego=ego)
+        else:
+            opponent = self._player(column.player, ego, as_row=False)
+        view = EgoView(core, opponent, ego=ego)
+        policy = LearnedAgent(view, self._player(row, ego, as_row=True))
+        return evaluate(view, policy, seed=self.world_seed, deterministic=False)
+
+
+def evaluate_cell(
+    row: Player, column: Column, world: Any, episodes: int, seed: int, device: str = "cpu"
+) -> dict[str, float]:
+    """One cell alone (``Arena.evaluate``): ``row`` with ``column`` playing every other agent, one episode in each
+    of ``episodes`` worlds seeded ``seed + EVAL_SEED_OFFSET``."""
+    return Arena(row.partner.domain, world, episodes, seed, device).evaluate(row, column)
+
+
+def crossplay(
+    rows: Sequence[Player],
+    columns: Sequence[Column],
+    world: Any,
+    episodes: int = 256,
+    seed: int = 0,
+    device: str = "cpu",
+    progress: Callable[[int], Any] | None = None,
+) -> pd.DataFrame:
+    """The long table of the matrix (``COLUMNS``, one row per (row, column), rows in order, then columns):
+
+    ``row_run``/``partner`` the run folders as given (a scripted partner by name), ``*_label`` their conditions'
+    labels, ``*_seed`` their seeds, ``row_agent`` the agent the row played, ``partner_kind`` scripted/learned,
+    ``self_pair`` (a run with itself), ``same_condition`` (two seeds of one condition, or a self-pair);
+    ``success``/``collision_rate``/``return`` of the row's agent, ``partner_success``/``partner_collision_rate``
+    over the partner's agents, ``team_success`` (every agent arrived), ``episodes``; ``skipped`` the reason a cell
+    was not played (its metrics empty). ``progress(1)`` is called after each cell.
+
+    Call ``check_players`` first (``run_crossplay`` does).
+    """
+    records = []
+    arena = Arena(rows[0].partner.domain, world, episodes, seed, device) if rows else None
+    for row in rows:
+        for column in columns:
+            partner = column.player
+            record = {
+                "row_run": str(row.path),
+                "row_label": row.label,
+                "row_seed": row.seed,
+                "row_agent": row.agent,
+                "partner": column.name,
+                "partner_label": column.label,
+                "partner_kind": column.kind,
+                "partner_seed": None if partner is None else partner.seed,
+                "self_pair": partner is not None and partner.path.resolve() == row.path.resolve(),
+                "same_condition": partner is not None and partner.condition == row.condition,
+                "skipped": cell_problem(row, column, world),
+            }
+            if not record["skipped"]:
+                metrics = arena.evaluate(row, column)
+                record.update({name: metrics[key] for name, key in METRICS.items()})
+            records.append(record)
+            if progress is not None:
+                progress(1)
+    frame = pd.DataFrame(records, columns=list(COLUMNS))
+    frame["episodes"] = frame["episodes"].astype("Int64")
+    for column in ("row_seed", "partner_seed"):
+        frame[column] = frame[column].astype("Int64")
+    return frame
+
+
+@dataclass
+class Matrix:
+    """A cross-play matrix evaluated: its table and how it was made (``crossplay.json``)."""
+
+    frame: pd.DataFrame
+    meta: dict[str, Any]
+
+
+def run_crossplay(
+    run_paths: Sequence[str | Path],
+    partners: str | Sequence[str] | None = None,
+    episodes: int = 256,
+    seed: int = 0,
+    noise: float | None = None,
+    device: str = "cpu",
+    show_progress: bool = True,
+) -> Matrix:
+    """Resolve the rows (``find_runs``) and partners (``resolve_partners``), check every pairing can be played
+    (``check_players``) and evaluate the matrix (``crossplay``), with a tqdm bar over the cells."""
+    from tqdm import tqdm
+
+    if episodes < 1:
+        raise CrossplayError(f"episodes={episodes} must be at least 1")
+    rows = [load_player(path) for path in find_runs(run_paths)]
+    if not rows:
+        raise CrossplayError("give at least one run folder (a row)")
+    domain = rows[0].partner.domain
+    columns = resolve_partners(partners, rows, domain)
+    world = evaluation_world(rows, noise)
+    learned = list(rows) + [c.player for c in columns if c.player is not None and all(c.player is not r for r in rows)]
+    label_players(learned)
+    check_players(learned, world, rows[0])
+    with tqdm(total=len(rows) * len(columns), desc="cross-play", unit="cell", disable=not show_progress) as bar:
+        frame = crossplay(rows, columns, world, episodes, seed, device, progress=bar.update)
+    meta = {
+        "domain": domain,
+        "layout": world.layout,
+        "noise": world.noise,
+        "episodes": episodes,
+        "seed": seed,
+        "world_seed": seed + EVAL_SEED_OFFSET,
+        "world_of": str(rows[0].path),
+        "rows": [str(row.path) for row in rows],
+        "partners": [column.name for column in columns],
+    }
+    return Matrix(frame, meta)

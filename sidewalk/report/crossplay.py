@@ -1,0 +1,312 @@
+"""The cross-play matrix drawn and told: heatmaps of every run with every partner and of conditions (mean over
+seeds), and the ``report.md`` section, from a folder that ``runners/crossplay.py`` wrote (``crossplay.csv``, one row
+per pairing, see ``sidewalk.crossplay``; ``crossplay.json``, how it was made; ``notes.md``, optional, what it
+shows, written by hand). Reads files only: no learner, no torch."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
+
+from sidewalk.report.figures import _save, slug
+from sidewalk.report.runs import shown_path
+from sidewalk.report.tables import NumberLog, fmt
+
+log = logging.getLogger(__name__)
+
+CROSSPLAY_CSV = "crossplay.csv"
+CROSSPLAY_JSON = "crossplay.json"
+NOTES = "notes.md"  # what the matrix shows, written by hand beside the CSV
+REPORT = "report.md"
+# Heatmaps: CSV column -> (title, colour map); every value is a rate in [0, 1].
+HEATMAP_METRICS = {
+    "success": ("success of the row's agent", "viridis"),
+    "collision_rate": ("collision rate of the row's agent", "magma_r"),
+    "team_success": ("team success (every agent arrived)", "viridis"),
+}
+ANNOTATE_MAX_CELLS = 600  # beyond this many cells, a heatmap's numbers are unreadable: colours only
+
+
+def find_crossplay(paths: Sequence[str | Path]) -> list[Path]:
+    """Every folder under ``paths`` (searched recursively, hidden folders not) that holds a ``crossplay.csv``."""
+    found: set[Path] = set()
+    for path in map(Path, paths):
+        if not path.is_dir():
+            continue
+        for root, dirs, files in os.walk(path):
+            if CROSSPLAY_CSV in files:
+                found.add(Path(root))
+            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+    return sorted(found)
+
+
+def read_crossplay(folder: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """A cross-play folder's table and how it was made (``{}`` when ``crossplay.json`` is missing)."""
+    folder = Path(folder)
+    frame = pd.read_csv(folder / CROSSPLAY_CSV, dtype={"skipped": str, "partner": str, "row_run": str})
+    frame["skipped"] = frame["skipped"].fillna("")
+    meta_path = folder / CROSSPLAY_JSON
+    meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
+    notes = folder / NOTES
+    if notes.exists():
+        meta["notes"] = notes.read_text().strip()
+    return frame, meta
+
+
+def _run_names(frame: pd.DataFrame) -> tuple[pd.Series, pd.Series]:
+    """Each row's run and each partner shown: its condition's label and seed (a scripted partner by name)."""
+    def shown(label: pd.Series, seed: pd.Series, path: pd.Series) -> pd.Series:
+        return pd.Series(
+            [f"{lab} s{int(s)}" if pd.notna(s) else f"{lab} ({Path(p).name})" for lab, s, p in zip(label, seed, path)],
+            index=frame.index,
+        )
+
+    rows = shown(frame["row_label"], frame["row_seed"], frame["row_run"])
+    learned = frame["partner_kind"] == "learned"
+    partners = frame["partner"].astype(str).copy()
+    partners[learned] = shown(frame["partner_label"], frame["partner_seed"], frame["partner"])[learned]
+    return rows, partners
+
+
+def _ordered(values: pd.Series) -> list[str]:
+    return list(dict.fromkeys(values))
+
+
+def _partner_order(names: pd.Series, kinds: pd.Series) -> list[str]:
+    """Partners in the CSV's order, the scripted ones first."""
+    scripted = _ordered(names[kinds == "scripted"])
+    return scripted + [name for name in _ordered(names) if name not in scripted]
+
+
+def scripted_count(frame: pd.DataFrame) -> int:
+    """How many of the matrix's partners are scripted (its first columns)."""
+    return len(set(frame.loc[frame["partner_kind"] == "scripted", "partner"]))
+
+
+def run_table(frame: pd.DataFrame, metric: str) -> pd.DataFrame:
+    """Runs (rows) × partners (columns) of ``metric``, in the CSV's order; NaN where a cell was skipped."""
+    rows, partners = _run_names(frame)
+    table = pd.DataFrame({"row": rows, "partner": partners, "value": frame[metric].astype(float)})
+    pivot = table.pivot_table(index="row", columns="partner", values="value", aggfunc="mean", dropna=False)
+    return pivot.reindex(index=_ordered(rows), columns=_partner_order(partners, frame["partner_kind"]))
+
+
+def self_pairs(frame: pd.DataFrame) -> list[tuple[str, str]]:
+    """(row, partner) names of the cells where a run plays with itself."""
+    rows, partners = _run_names(frame)
+    mask = frame["self_pair"].astype(bool)
+    return list(zip(rows[mask], partners[mask]))
+
+
+def condition_table(frame: pd.DataFrame, metric: str) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(mean, pairs): conditions (rows) × partners (columns: scripted opponents by name, learned ones by
+    condition) of ``metric``, the mean over every pair of runs of the two conditions, self-pairs (a run with
+    itself) left out, so a condition's cell with itself is the mean over pairs of different seeds; ``pairs``
+    counts the cells averaged (0 and NaN where there are none, e.g. a condition of one seed with itself)."""
+    used = frame[~frame["self_pair"].astype(bool) & (frame["skipped"] == "")]
+    rows, columns = _ordered(frame["row_label"]), _partner_order(frame["partner_label"], frame["partner_kind"])
+    grouped = used.groupby(["row_label", "partner_label"], sort=False)[metric]
+    mean = grouped.mean().unstack().reindex(index=rows, columns=columns)
+    pairs = grouped.count().unstack().reindex(index=rows, columns=columns).fillna(0).astype(int)
+    return mean.astype(float), pairs
+
+
+def draw_heatmap(
+    table: pd.DataFrame,
+    title: str,
+    path: Path,
+    cmap: str = "viridis",
+    pairs: pd.DataFrame | None = None,
+    outlined: Sequence[tuple[str, str]] = (),
+    scripted: int = 0,
+) -> None:
+    """``table`` as a heatmap on [0, 1], each cell annotated with its value (and its number of pairs); NaN
+    cells grey, the ``outlined`` (row, column) cells boxed, a line after the first ``scripted`` columns."""
+    n_rows, n_cols = table.shape
+    width = min(2.5 + 0.62 * n_cols + 0.06 * max(len(str(r)) for r in table.index), 40.0)
+    height = min(1.8 + 0.42 * n_rows + 0.05 * max(len(str(c)) for c in table.columns), 40.0)
+    figure = Figure(figsize=(width, height))
+    ax = figure.add_subplot()
+    values = table.to_numpy(float)
+    colour_map = matplotlib.colormaps[cmap].with_extremes(bad="#dddddd")  # a skipped cell, or no pair: grey
+    colours = ax.imshow(np.ma.masked_invalid(values), vmin=0.0, vmax=1.0, cmap=colour_map, aspect="auto")
+    ax.set_xticks(range(n_cols), [str(c) for c in table.columns], rotation=45, ha="right", fontsize=8)
+    ax.set_yticks(range(n_rows), [str(r) for r in table.index], fontsize=8)
+    ax.set_xlabel("partner (plays every other agent)")
+    ax.set_ylabel("row (plays the agent it trained as)")
+    ax.set_title(title, fontsize=10)
+    if n_rows * n_cols <= ANNOTATE_MAX_CELLS:
+        size = 7 if n_cols <= 12 else 5.5
+        for i in range(n_rows):
+            for j in range(n_cols):
+                value = values[i, j]
+                text = "–" if math.isnan(value) else f"{value:.2f}"
+                if pairs is not None and not math.isnan(value):
+                    text += f"\n({int(pairs.iat[i, j])})"
+                red, green, blue = colours.cmap(colours.norm(value))[:3] if not math.isnan(value) else (1, 1, 1)
+                dark = 0.299 * red + 0.587 * green + 0.114 * blue < 0.5
+                ax.text(j, i, text, ha="center", va="center", fontsize=size, color="white" if dark else "black")
+    index = {name: i for i, name in enumerate(table.index)}
+    column = {name: j for j, name in enumerate(table.columns)}
+    for row, partner in outlined:
+        if row in index and partner in column:
+            corner = (column[partner] - 0.5, index[row] - 0.5)
+            ax.add_patch(Rectangle(corner, 1.0, 1.0, fill=False, edgecolor="red", linewidth=1.4))
+    if 0 < scripted < n_cols:  # scripted partners | learned ones
+        ax.axvline(scripted - 0.5, color="white", linewidth=3)
+    figure.colorbar(colours, ax=ax, fraction=0.04, pad=0.02)
+    _save(figure, path)
+
+
+def _markdown_table(mean: pd.DataFrame, pairs: pd.DataFrame | None = None) -> list[str]:
+    header = "| row \\ partner | " + " | ".join(str(c) for c in mean.columns) + " |"
+    lines = [header, "| --- |" + " ---: |" * len(mean.columns)]
+    for name, values in mean.iterrows():
+        cells = []
+        for j, value in enumerate(values):
+            text = fmt(float(value))
+            if pairs is not None and not math.isnan(float(value)):
+                text += f" ({int(pairs.loc[name].iloc[j])})"
+            cells.append(text)
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def crossplay_section(
+    frame: pd.DataFrame,
+    meta: dict[str, Any],
+    figures_dir: Path,
+    out: Path,
+    figures: list[Path] | None = None,
+    numbers: NumberLog | None = None,
+    prefix: str = "crossplay",
+    heading: str = "## Cross-play",
+    folder: Path | None = None,
+) -> list[str]:
+    """The matrix's ``report.md`` lines: how it was made, per metric the conditions' table and heatmap and every
+    run's heatmap (figures drawn into ``figures_dir`` as ``<prefix>_*.png`` and linked relative to ``out``), the
+    skipped cells, and what it shows (``notes.md``, or a place for it). Numbers of the tables go to ``numbers``;
+    ``folder``: where the matrix's ``crossplay.csv`` is (linked for every cell's numbers)."""
+    figures = figures if figures is not None else []
+    sub = heading.split(" ", 1)[0] + "#"
+    rows = _ordered(frame["row_run"])
+    partners = _ordered(frame["partner"])
+    skipped = frame[frame["skipped"] != ""]
+    episodes = meta.get("episodes", frame["episodes"].dropna().max() if frame["episodes"].notna().any() else "?")
+    md = [heading, ""]
+    if meta.get("command"):
+        md += ["Made by:", "", "```", meta["command"], "```", ""]
+    world = ", ".join(
+        f"{key} {meta[key]}" for key in ("domain", "layout", "noise") if key in meta
+    )
+    md += [
+        (
+            f"{len(rows)} run(s) × {len(partners)} partner(s) = {len(frame)} cells"
+            + (f", made {meta['created']}" if meta.get("created") else "")
+            + f". Every cell plays one episode in each of the same {episodes} seeded worlds"
+            + (f" (seed {meta['seed']}: worlds seeded {meta['world_seed']}, the stream a run of seed {meta['seed']} "
+               "is evaluated on)" if "seed" in meta and "world_seed" in meta else "")
+            + (f"; world: {world}" if world else "")
+            + (f", the training world of `{meta['world_of']}`" if meta.get("world_of") else "")
+            + "."
+        ),
+        "",
+        (
+            "- Rows: a learned policy playing the agent it trained as (agent 0 for a centralized or self-play "
+            "learner); columns: the partner playing every other agent, a scripted opponent or a learned policy. "
+            "Both act greedily (their evaluation policies)."
+        ),
+        "- Success and collisions are the row's agent's; team success: every agent reached its goal.",
+        (
+            "- By condition: the mean over every pair of runs of the two conditions (the number of pairs in "
+            "parentheses). Self-pairs (a run with itself) are left out, so a condition's cell with itself is the "
+            "mean over pairs of *different* seeds (cross-seed play); every run's figure shows the self-pairs, "
+            "boxed in red."
+        ),
+    ]
+    if folder is not None:
+        md.append(f"- Every cell's numbers: [`{CROSSPLAY_CSV}`]({shown_path(folder / CROSSPLAY_CSV, out)}).")
+    md.append("")
+    for metric, (title, cmap) in HEATMAP_METRICS.items():
+        mean, pairs = condition_table(frame, metric)
+        by_condition = figures_dir / f"{prefix}_by_condition_{metric}.png"
+        by_run = figures_dir / f"{prefix}_{metric}.png"
+        draw_heatmap(mean, f"Cross-play by condition: {title}", by_condition, cmap, pairs=pairs,
+                     scripted=scripted_count(frame))
+        draw_heatmap(run_table(frame, metric), f"Cross-play, every run: {title}", by_run, cmap,
+                     outlined=self_pairs(frame), scripted=scripted_count(frame))
+        figures += [by_condition, by_run]
+        md += [f"{sub} {title[0].upper()}{title[1:]}", ""]
+        md += _markdown_table(mean, pairs) + [""]
+        md += [
+            f"![cross-play by condition: {title}]({shown_path(by_condition, out)})",
+            "",
+            f"![cross-play, every run: {title}]({shown_path(by_run, out)})",
+            "",
+        ]
+        if numbers is not None:
+            for row_label, values in mean.iterrows():
+                for partner_label, value in values.items():
+                    numbers.add(
+                        "crossplay", None, f"row: {row_label}; partner: {partner_label}", metric, "mean",
+                        float(value), int(pairs.loc[row_label, partner_label]),
+                        "mean over pairs of runs, self-pairs left out",
+                    )
+    if not skipped.empty:
+        md += [f"{sub} Cells not played", "", "| row | partner | reason |", "| --- | --- | --- |"]
+        md += [f"| `{r.row_run}` | `{r.partner}` | {r.skipped} |" for r in skipped.itertuples()]
+        md.append("")
+    md += [f"{sub} What it shows", ""]
+    notes = meta.get("notes", "").strip()
+    md += [
+        notes
+        or "_Not written yet: write what the matrix shows (do policies trained with a scripted partner coordinate "
+        f"with a learned one? do self-play seeds coordinate with each other?) into `{NOTES}` beside "
+        f"`{CROSSPLAY_CSV}` and redraw (`python runners/crossplay.py --redraw DIR`)._",
+        "",
+    ]
+    return md
+
+
+def write_crossplay_report(folder: str | Path) -> Path:
+    """Draw the figures of the cross-play folder ``folder`` into ``folder/figures`` and write its
+    ``report.md`` (the section under a title); returns the report's path."""
+    from sidewalk.run_folder import atomic_write
+
+    folder = Path(folder)
+    frame, meta = read_crossplay(folder)
+    figures_dir = folder / "figures"
+    figures_dir.mkdir(parents=True, exist_ok=True)
+    md = ["# Sidewalk cross-play", ""]
+    md += crossplay_section(frame, meta, figures_dir, folder, folder=folder)
+    report = folder / REPORT
+    atomic_write(report, lambda tmp: tmp.write_text("\n".join(md) + "\n"))
+    log.info("wrote %s", report)
+    return report
+
+
+def crossplay_sections(
+    folders: Sequence[Path], figures_dir: Path, out: Path, figures: list[Path], numbers: NumberLog
+) -> list[str]:
+    """The cross-play sections of a report over runs (``sidewalk.report.document``), one per folder found."""
+    md: list[str] = []
+    for number, folder in enumerate(folders, 1):
+        frame, meta = read_crossplay(folder)
+        heading = "## Cross-play" if len(folders) == 1 else f"## Cross-play: `{shown_path(folder, out)}`"
+        md += crossplay_section(
+            frame, meta, figures_dir, out, figures, numbers,
+            prefix=f"crossplay{number}_{slug(folder.name)}" if len(folders) > 1 else "crossplay", heading=heading,
+            folder=folder,
+        )
+    return md

@@ -1,0 +1,233 @@
+"""The cross-play matrix (``runners/crossplay.py``, ``sidewalk.crossplay``, ``sidewalk.report.crossplay``): its
+shape, its reproducibility, each cell equal to a plain evaluation of that pairing, its errors before any compute,
+its files and figures, and its section in ``runners/report.py``'s report.
+
+The runs are tiny (two iterations, no update: each seed's networks are their initial weights, so seeds differ) on
+a 6-cell sidewalk with vector observations; built once for the module."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from sidewalk.config import register_schemas, validate
+from sidewalk.crossplay import COLUMNS, CrossplayError, evaluation_world, load_player, run_crossplay
+from sidewalk.envs import DiscreteSidewalkEnv
+from sidewalk.evaluate import evaluate
+from sidewalk.experiment import EVAL_SEED_OFFSET, Trial
+from sidewalk.report import Settings, write_report
+from sidewalk.report.checkpoints import load_experiment, load_policy
+from sidewalk.report.crossplay import condition_table, read_crossplay
+from sidewalk.views import EgoView
+
+ROOT = Path(__file__).resolve().parents[1]
+register_schemas()
+TINY = ["logger=none", "iterations=2", "eval_every=0", "eval_episodes=8", "checkpoint_every=0", "num_envs=4"]
+SMALL_GRID = ["env.length_cells=6", "env.observation=vector", "env.max_steps=30", "algo.frames_per_batch=16"]
+RUNS = {
+    "dqn_dijkstra_s0": ["algo=dqn", "opponent=dijkstra", "seed=0"],
+    "dqn_dijkstra_s1": ["algo=dqn", "opponent=dijkstra", "seed=1"],
+    "dqn_centralized_s0": ["algo=dqn", "opponent=centralized", "seed=0"],
+    "iql_self_s0": ["algo=iql", "opponent=self", "seed=0"],
+}
+EPISODES = 8
+
+
+def _runner(name: str):
+    spec = importlib.util.spec_from_file_location(f"runner_{name}", ROOT / "runners" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def train(run_dir: Path, *overrides: str) -> Path:
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[*TINY, *overrides])
+    Trial(validate(cfg), run_dir, OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
+    return run_dir
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("runs")
+    built = {name: train(root / name, *overrides, *SMALL_GRID) for name, overrides in RUNS.items()}
+    built["ppo_continuous"] = train(
+        root / "ppo_continuous", "env=continuous", "opponent=random", "algo=ppo", "iterations=1",
+        "algo.frames_per_batch=16", "algo.minibatch_size=8", "algo.epochs=1",
+    )
+    return built
+
+
+@pytest.fixture(scope="module")
+def matrix(runs):
+    rows = [runs[name] for name in RUNS]
+    return run_crossplay(rows, episodes=EPISODES, seed=0, show_progress=False)
+
+
+def test_the_matrix_has_a_cell_for_every_row_and_partner(runs, matrix):
+    frame = matrix.frame
+    partners = ["random", "dijkstra", *(str(runs[name]) for name in RUNS)]
+    assert list(frame.columns) == list(COLUMNS)
+    assert len(frame) == len(RUNS) * len(partners)
+    assert list(frame["partner"][: len(partners)]) == partners
+    assert (frame["skipped"] == "").all()
+    assert (frame["episodes"] == EPISODES).all()
+    assert frame[["success", "team_success", "collision_rate"]].notna().all().all()
+    by_run = frame.set_index(["row_run", "partner"])
+    s0, s1 = str(runs["dqn_dijkstra_s0"]), str(runs["dqn_dijkstra_s1"])
+    assert by_run.loc[(s0, s0), "self_pair"] and by_run.loc[(s0, s0), "same_condition"]
+    assert not by_run.loc[(s0, s1), "self_pair"] and by_run.loc[(s0, s1), "same_condition"]
+    assert not by_run.loc[(s0, str(runs["iql_self_s0"])), "same_condition"]
+    labels = dict(zip(frame["row_run"], frame["row_label"]))
+    assert labels[s0] == labels[s1] == "dqn vs dijkstra"
+    assert labels[str(runs["dqn_centralized_s0"])] == "dqn centralized"
+    assert labels[str(runs["iql_self_s0"])] == "iql self-play"
+    assert sorted(set(frame["row_seed"])) == [0, 1]
+    assert set(frame["row_agent"]) == {0}  # trained as agent 0, or as every agent
+
+
+def test_a_cell_equals_a_plain_evaluation_of_its_pairing(runs):
+    """Row DQN with the scripted partner, and with a learned one (``opponent=policy``), at noise 0.1 so that the
+    seeded worlds matter: each cell is what ``evaluate`` gives for that pairing on the same worlds."""
+    row, partner = runs["dqn_dijkstra_s0"], runs["dqn_dijkstra_s1"]
+    frame = run_crossplay([row], ["dijkstra", "random", str(partner)], episodes=EPISODES, seed=3, noise=0.1,
+                          show_progress=False).frame
+    experiment = load_experiment(row)
+    world = evaluation_world([load_player(row)], 0.1)
+    seed = 3 + EVAL_SEED_OFFSET
+    for opponent, kwargs, name in (("dijkstra", {}, "dijkstra"), ("random", {}, "random"),
+                                   ("policy", {"path": partner}, str(partner))):
+        view = EgoView(DiscreteSidewalkEnv(EPISODES, seed=seed, params=world), opponent, ego=0,
+                       opponent_kwargs=kwargs)
+        metrics = evaluate(view, load_policy(row, experiment, view), seed=seed)
+        cell = frame[frame["partner"] == name].iloc[0]
+        assert cell["success"] == metrics["ego/success_rate"]
+        assert cell["partner_success"] == metrics["other/success_rate"]
+        assert cell["collision_rate"] == metrics["ego/collision_rate"]
+        assert cell["team_success"] == metrics["team/success_rate"]
+        assert cell["return"] == pytest.approx(metrics["ego/return"], abs=1e-6)
+
+
+def test_a_run_paired_with_its_training_opponent_reproduces_its_final_evaluation(runs):
+    row = runs["dqn_dijkstra_s1"]
+    frame = run_crossplay([row], "dijkstra", episodes=8, seed=1, show_progress=False).frame
+    summary = json.loads((row / "summary.json").read_text())
+    assert frame["success"].iloc[0] == summary["ego/success_rate"]
+    assert frame["team_success"].iloc[0] == summary["team/success_rate"]
+
+
+def test_a_run_of_another_domain_fails_naming_it_before_any_evaluation(runs, monkeypatch):
+    from sidewalk import crossplay
+
+    def no_evaluation(*args, **kwargs):
+        raise AssertionError("a cell was evaluated before the check")
+
+    monkeypatch.setattr(crossplay.Arena, "evaluate", no_evaluation)
+    other = str(runs["ppo_continuous"])
+    with pytest.raises(CrossplayError, match=f"{other} cannot be paired.*continuous domain"):
+        run_crossplay([runs["dqn_dijkstra_s0"]], f"dijkstra,{other}", episodes=4, show_progress=False)
+    with pytest.raises(CrossplayError, match=f"{other} cannot be paired.*continuous domain"):
+        run_crossplay([runs["dqn_dijkstra_s0"], other], episodes=4, show_progress=False)
+
+
+def test_bad_partners_and_run_folders_are_named(runs, tmp_path):
+    row = [runs["dqn_dijkstra_s0"]]
+    with pytest.raises(CrossplayError, match="unknown partner 'dijkstr'.*random, dijkstra"):
+        run_crossplay(row, "dijkstr", show_progress=False)
+    with pytest.raises(CrossplayError, match="partner 'prm' does not play the discrete domain"):
+        run_crossplay(row, "prm", show_progress=False)
+    unfinished = tmp_path / "unfinished"
+    unfinished.mkdir()
+    (unfinished / "config.yaml").write_text((runs["dqn_dijkstra_s0"] / "config.yaml").read_text())
+    with pytest.raises(CrossplayError, match=f"{unfinished} has no policy.pt"):
+        run_crossplay([*row, unfinished], show_progress=False)
+    with pytest.raises(CrossplayError, match="is not a folder"):
+        run_crossplay([tmp_path / "missing"], show_progress=False)
+
+
+def test_the_runner_writes_the_same_csv_for_the_same_seed_with_figures_and_report(runs, tmp_path):
+    runner = _runner("crossplay")
+    rows = [str(runs["dqn_dijkstra_s0"]), str(runs["dqn_dijkstra_s1"])]
+    common = ["--partners", "random,rows", "--episodes", "4", "--seed", "5", "--noise", "0.2", "--no-progress"]
+    assert runner.main([*rows, *common, "--out", str(tmp_path / "a")]) == 0
+    assert runner.main([*rows, *common, "--out", str(tmp_path / "b")]) == 0
+    out = tmp_path / "a"
+    assert (out / "crossplay.csv").read_bytes() == (tmp_path / "b" / "crossplay.csv").read_bytes()
+    meta = json.loads((out / "crossplay.json").read_text())
+    assert meta["world_seed"] == 5 + EVAL_SEED_OFFSET and meta["noise"] == 0.2 and meta["episodes"] == 4
+    assert meta["command"].startswith("python runners/crossplay.py ") and "--seed 5" in meta["command"]
+    figures = sorted(path.name for path in (out / "figures").glob("*.png"))
+    assert figures == sorted(
+        f"crossplay{part}_{metric}.png" for part in ("", "_by_condition")
+        for metric in ("success", "collision_rate", "team_success")
+    )
+    report = (out / "report.md").read_text()
+    assert "## Cross-play" in report and meta["command"] in report and "Not written yet" in report
+    assert "| dqn vs dijkstra | " in report and "(figures/crossplay_by_condition_success.png)" in report
+    (out / "notes.md").write_text("Seeds of one condition coordinate with each other.")
+    assert runner.main(["--redraw", str(out)]) == 0
+    assert "Seeds of one condition coordinate" in (out / "report.md").read_text()
+    assert runner.main([rows[0], "--partners", "nobody", "--out", str(tmp_path / "c"), "--no-progress"]) == 2
+    assert not (tmp_path / "c").exists()
+
+
+def test_condition_means_leave_out_self_pairs():
+    cells = []
+    for row_seed in (0, 1, 2):
+        for partner_seed in (0, 1, 2):
+            cells.append({"row_run": f"a{row_seed}", "row_label": "A", "row_seed": row_seed, "partner": f"a{partner_seed}",
+                          "partner_label": "A", "partner_kind": "learned", "partner_seed": partner_seed,
+                          "self_pair": row_seed == partner_seed, "skipped": "",
+                          "success": 1.0 if row_seed == partner_seed else float(row_seed + partner_seed) / 10})
+    mean, pairs = condition_table(pd.DataFrame(cells), "success")
+    assert pairs.loc["A", "A"] == 6
+    assert mean.loc["A", "A"] == pytest.approx((0.1 + 0.2 + 0.1 + 0.3 + 0.2 + 0.3) / 6)
+
+
+def test_the_report_includes_the_matrix(runs, tmp_path):
+    out = tmp_path / "crossplay"
+    assert _runner("crossplay").main(
+        [str(runs["dqn_dijkstra_s0"]), "--partners", "dijkstra,rows", "--episodes", "4", "--no-progress",
+         "--out", str(out)]
+    ) == 0
+    result = write_report([runs["dqn_dijkstra_s0"], out], tmp_path / "report", Settings(trajectory_episodes=0))
+    report = result.report_md.read_text()
+    assert result.crossplay == [out]
+    assert "## Cross-play" in report and "(figures/crossplay_by_condition_team_success.png)" in report
+    assert (tmp_path / "report" / "figures" / "crossplay_success.png").exists()
+    numbers = pd.read_csv(tmp_path / "report" / "report.csv")
+    assert (numbers["section"] == "crossplay").any()
+    alone = write_report([out], tmp_path / "alone", Settings(trajectory_episodes=0))  # the matrix alone
+    assert alone.crossplay == [out] and "## Cross-play" in alone.report_md.read_text()
+    frame, meta = read_crossplay(out)
+    assert len(frame) == 2 and meta["partners"] == ["dijkstra", str(runs["dqn_dijkstra_s0"])]
+
+
+
+def test_a_partner_that_cannot_play_the_other_role_leaves_its_cell_empty_with_the_reason(tmp_path):
+    # The door scenario has no half-turn symmetry: a learner trained as agent 0 cannot play agent 1.
+    run = train(tmp_path / "door", "algo=dqn", "opponent=dijkstra", "env.layout=door", "env.observation=vector",
+                "env.max_steps=30", "algo.frames_per_batch=16")
+    frame = run_crossplay([run], "dijkstra,rows", episodes=4, show_progress=False).frame
+    played, empty = frame.iloc[0], frame.iloc[1]
+    assert played["skipped"] == "" and played["episodes"] == 4
+    assert "cannot play agent 1" in empty["skipped"] and pd.isna(empty["success"]) and pd.isna(empty["episodes"])
+
+
+def test_distinct_rows_are_exact():
+    import torch
+
+    from sidewalk.crossplay import distinct_rows
+
+    flat = torch.randint(0, 3, (64, 5), dtype=torch.uint8, generator=torch.Generator().manual_seed(1))
+    for rows in (flat, flat[:1].expand(8, 5)):
+        first_of, inverse = distinct_rows(rows)
+        assert torch.equal(rows[first_of][inverse], rows)
+        assert len(first_of) == len(torch.unique(rows, dim=0))
+        assert all(int(first) == int((inverse == group).nonzero()[0]) for group, first in enumerate(first_of))
