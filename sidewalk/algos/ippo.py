@@ -1,0 +1,243 @@
+"""IPPO (independent PPO, de Witt et al. 2020) from TorchRL parts: every agent's clipped PPO on its own reward, for
+both domains, as TorchRL's ``sota-implementations/multiagent/mappo_ippo.py`` builds it.
+
+Each agent's policy and value network read that agent's observation only: ``MultiAgentMLP`` heads
+(``centralised=False``) over a per-agent encoder (the paper's conv stack, ``MultiAgentConvNet``, for grid images;
+for vectors one ``RunningNorm`` over the per-agent observation, shared by both networks as in our single-agent PPO).
+``share_params`` (default) gives every agent the same weights -- each observation is ego-centric, so one network can
+play any agent -- or one set per agent. ``ClipPPOLoss`` and ``GAE`` run over the agent-batched keys
+``("agents", ...)``: each agent's advantage comes from its own reward and value, the world's done cuts every agent's
+trajectory. The rest is our single-agent PPO (``sidewalk.algos.ppo``): a ``TanhNormal`` with a state-independent
+log-std starting at 0 (continuous) or a ``Categorical`` (grid), an output layer at 1 % of its default scale, the
+log-prob reference taken after the statistics moved, minibatches drawn by a generator the checkpoint keeps.
+``sidewalk.algos.mappo`` is this learner with a centralised critic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule, TensorDictModuleBase
+from torch import nn
+from torchrl.data import Bounded, Categorical, Composite
+from torchrl.envs import EnvBase
+from torchrl.envs.utils import ExplorationType
+from torchrl.modules import MultiAgentConvNet, MultiAgentMLP, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from sidewalk._checks import check_int, check_range
+from sidewalk.algos.base import FixedExplorationPolicy, MultiAgentAlgorithm, MultiAgentConfig
+from sidewalk.algos.networks import PAPER_CONV, RunningNorm, VectorEncoder, is_image_spec
+from sidewalk.envs.base import AGENT_GROUP
+
+LOG_PROB_KEY = (AGENT_GROUP, "action_log_prob")
+VALUE_KEY = (AGENT_GROUP, "state_value")
+
+
+@dataclass
+class IPPOConfig(MultiAgentConfig):
+    """IPPO settings: our single-agent PPO's (CleanRL's continuous-control preset, ``sidewalk.algos.ppo``) for every
+    agent, with the batch and run length measured on the continuous two-agent sidewalk (see each field)."""
+
+    name: str = "ippo"
+    frames_per_batch: int = 2048  # as PPO: 16 steps of 128 worlds, 4096 agent-steps with two agents
+    default_num_envs: int = 128
+    default_iterations: int = 200
+    default_eval_every: int = 10
+    gamma: float = 0.99
+    lr: float = 3e-4
+    max_grad_norm: float = 0.5
+    gae_lambda: float = 0.95
+    clip_epsilon: float = 0.2
+    epochs: int = 10
+    minibatch_size: int = 64  # world-steps (each holds every agent's transition)
+    entropy_coef: float = 0.0
+    critic_coef: float = 0.5
+    hidden: list[int] = field(default_factory=lambda: [64, 64])
+    normalize_observations: bool = True  # vectors only, not images
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_range("algo.gae_lambda", self.gae_lambda, 0.0, 1.0)
+        check_range("algo.clip_epsilon", self.clip_epsilon, 0.0, 1.0, low_open=True)
+        check_int("algo.epochs", self.epochs, 1)
+        check_int("algo.minibatch_size", self.minibatch_size, 1)
+        check_range("algo.entropy_coef", self.entropy_coef, 0.0)
+        check_range("algo.critic_coef", self.critic_coef, 0.0)
+        for width in self.hidden:
+            check_int("algo.hidden[]", width, 1)
+        if not isinstance(self.normalize_observations, bool):
+            raise TypeError(f"algo.normalize_observations={self.normalize_observations!r} must be a bool")
+
+
+class Pixels(nn.Module):
+    """uint8 grey images → float32 in [0, 1]."""
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        return image.to(torch.float32) / 255.0
+
+
+class OwnValue(nn.Module):
+    """Per-agent values from a shared centralised critic's N heads, (..., N, N) → (..., N, 1): agent i reads head
+    i. (A shared ``MultiAgentMLP(centralised=True)`` alone gives every agent the same output, right only when the
+    agents share one reward; ours each have their own.)"""
+
+    def forward(self, heads: torch.Tensor) -> torch.Tensor:
+        return heads.diagonal(dim1=-2, dim2=-1).unsqueeze(-1)
+
+
+def agent_encoder(observation_spec, share_params: bool, norm: RunningNorm | None) -> tuple[nn.Module, int]:
+    """(..., N, *obs) → (..., N, features) for each agent apart: the paper's conv stack (ReLU) for uint8 images,
+    one set of weights or one per agent; ``norm`` (or a float cast) for vectors. Returns (module, features)."""
+    n_agents, *obs_shape = observation_spec.shape
+    if not is_image_spec(observation_spec):
+        return (norm if norm is not None else VectorEncoder(torch.Size(obs_shape))), obs_shape[-1]
+    conv = MultiAgentConvNet(
+        n_agents, centralized=False, share_params=share_params, in_features=obs_shape[-3],
+        activation_class=nn.ReLU, **PAPER_CONV,
+    )
+    encoder = nn.Sequential(Pixels(), conv)
+    with torch.no_grad():
+        features = encoder(observation_spec.zero().unsqueeze(0)).shape[-1]
+    return encoder, features
+
+
+def multi_agent_networks(
+    observation_spec, action_spec, cfg: IPPOConfig, centralised_critic: bool
+) -> tuple[ProbabilisticActor, ValueOperator, RunningNorm | None]:
+    """The agents' policy and value networks from the unbatched specs (agent dimension first): encoder → tanh
+    ``MultiAgentMLP``. The policy writes ``("agents", "action")``, sampled from a ``TanhNormal`` within the
+    ``Bounded`` spec (state-independent log-std, one per agent without shared parameters) or a ``Categorical``;
+    its output layer starts at 1 % of its default scale, so the first policy is centred / near uniform. The value
+    network writes ``("agents", "state_value")`` from the agent's own features, or with ``centralised_critic``
+    from every agent's. Returns (actor, value, norm)."""
+    n_agents = observation_spec.shape[0]
+    norm = None
+    if cfg.normalize_observations and not is_image_spec(observation_spec):
+        norm = RunningNorm(observation_spec.shape[-1])
+    if isinstance(action_spec, Bounded):
+        n_out, dist_keys = action_spec.shape[-1], ["loc", "scale"]
+        dist = {
+            "distribution_class": TanhNormal,
+            "distribution_kwargs": {"low": action_spec.space.low, "high": action_spec.space.high},
+        }
+    elif isinstance(action_spec, Categorical):
+        n_out, dist_keys = action_spec.space.n, ["logits"]
+        dist = {"distribution_class": torch.distributions.Categorical}
+    else:
+        raise TypeError(f"needs a Categorical or Bounded action spec; got {type(action_spec).__name__}")
+    dist_keys = [(AGENT_GROUP, key) for key in dist_keys]
+
+    encoder, features = agent_encoder(observation_spec, cfg.share_params, norm)
+    head = MultiAgentMLP(
+        features, n_out, n_agents, centralized=False, share_params=cfg.share_params, num_cells=list(cfg.hidden),
+        activation_class=nn.Tanh,
+    )
+    out_layer = head.params[str(len(head._empty_net) - 1)]
+    with torch.no_grad():
+        out_layer["weight"].mul_(0.01)
+        out_layer["bias"].zero_()
+    policy_net = nn.Sequential(encoder, head)
+    if isinstance(action_spec, Bounded):
+        scale_shape = (n_out,) if cfg.share_params else (n_agents, n_out)
+        policy_net.append(AddStateIndependentNormalScale(scale_shape, scale_mapping="exp"))
+    module = TensorDictModule(policy_net, in_keys=[MultiAgentAlgorithm.OBSERVATION_KEY], out_keys=dist_keys)
+    actor = ProbabilisticActor(
+        module,
+        in_keys=dist_keys,
+        out_keys=[MultiAgentAlgorithm.ACTION_KEY],
+        spec=Composite({AGENT_GROUP: Composite(action=action_spec, shape=(n_agents,))}),
+        **dist,
+    )
+
+    encoder, features = agent_encoder(observation_spec, cfg.share_params, norm)
+    shared_heads = centralised_critic and cfg.share_params
+    value_head = MultiAgentMLP(
+        features, n_agents if shared_heads else 1, n_agents, centralized=centralised_critic,
+        share_params=cfg.share_params, num_cells=list(cfg.hidden), activation_class=nn.Tanh,
+    )
+    value_net = nn.Sequential(encoder, value_head, *([OwnValue()] if shared_heads else []))
+    value = ValueOperator(value_net, in_keys=[MultiAgentAlgorithm.OBSERVATION_KEY], out_keys=[VALUE_KEY])
+    return actor, value, norm
+
+
+class IPPO(MultiAgentAlgorithm):
+    """Clipped PPO for every agent at once, each on its own reward; advantages by GAE over each collected
+    (worlds, time) batch. ``centralised_critic``: the value networks see every agent's observation (MAPPO)."""
+
+    Config = IPPOConfig
+    centralised_critic: ClassVar[bool] = False
+
+    def _build(self, env: EnvBase) -> None:
+        cfg: IPPOConfig = self.config
+        actor, critic, self.obs_norm = multi_agent_networks(
+            self.observation_spec, self.action_spec, cfg, self.centralised_critic
+        )
+        self.actor, self.critic = actor.to(self.device), critic.to(self.device)
+        value_keys = {
+            "value": VALUE_KEY, "reward": self.REWARD_KEY, "done": self.DONE_KEY, "terminated": self.TERMINATED_KEY,
+            "advantage": (AGENT_GROUP, "advantage"), "value_target": (AGENT_GROUP, "value_target"),
+        }
+        self.advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=self.critic, average_gae=True)
+        self.advantage.set_keys(**value_keys)
+        self.loss = ClipPPOLoss(
+            self.actor, self.critic, clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coef,
+            critic_coeff=cfg.critic_coef, normalize_advantage=False,
+        )
+        self.loss.set_keys(action=self.ACTION_KEY, sample_log_prob=LOG_PROB_KEY, **value_keys)
+        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr, foreach=True)
+        self._generator = torch.Generator().manual_seed(0)
+        self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
+        self._evaluation = FixedExplorationPolicy(self.actor, ExplorationType.DETERMINISTIC)
+
+    def collection_policy(self) -> TensorDictModuleBase:
+        return self._collection
+
+    def evaluation_policy(self) -> TensorDictModuleBase:
+        return self._evaluation
+
+    def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
+        cfg: IPPOConfig = self.config
+        self.frames_seen += batch.numel()
+        batch = batch.to(self.device)
+        with torch.no_grad():
+            self.advantage(batch)  # GAE needs the (worlds, time) layout: time is the last batch dimension
+        flat = batch.reshape(-1)
+        if self.obs_norm is not None:
+            self.obs_norm.update(flat.get(self.OBSERVATION_KEY))
+        with torch.no_grad():
+            # The ratio's reference: the policy as it is now, after the statistics moved, as in our PPO.
+            dist = self.actor.get_dist(flat.copy())
+            flat.set(LOG_PROB_KEY, dist.log_prob(flat.get(self.ACTION_KEY)))
+        logs: dict[str, list[torch.Tensor]] = {"loss_objective": [], "loss_critic": [], "loss_entropy": [], "kl_approx": [], "clip_fraction": []}
+        for _ in range(cfg.epochs):
+            order = torch.randperm(flat.numel(), generator=self._generator).to(self.device)
+            for start in range(0, flat.numel(), cfg.minibatch_size):
+                minibatch = flat[order[start : start + cfg.minibatch_size]]
+                losses = self.loss(minibatch)
+                loss = sum(losses[key] for key in losses.keys() if key.startswith("loss_"))
+                self.optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.max_grad_norm)
+                self.optimizer.step()
+                for key in logs:
+                    if key in losses.keys():
+                        logs[key].append(losses[key].detach())
+        return {key: float(torch.stack(values).mean()) for key, values in logs.items() if values}
+
+    def modules(self) -> dict[str, torch.nn.Module]:
+        return {"loss": self.loss}
+
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        return {"adam": self.optimizer}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {**super().state_dict(), "minibatch_rng": self._generator.get_state()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        super().load_state_dict(state)
+        self._generator.set_state(state["minibatch_rng"])

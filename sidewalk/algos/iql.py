@@ -1,0 +1,258 @@
+"""IQL for the discrete Sidewalk in self-play (``opponent=self``): every agent learns its own Q-values with DQN
+(Tan 1993; TorchRL's ``sota-implementations/multiagent/iql.py``), all TorchRL parts.
+
+Each agent's Q-network is DQN's (the paper's conv stack, a dueling head) on the agent's ego-centric observation, one
+set of weights for every agent (``share_params``) or one per agent; ε-greedy explores each agent independently;
+a replay buffer of joint transitions, double-DQN targets on each agent's own reward and a Polyak target network.
+This file also holds the machinery VDN and QMIX share (``sidewalk.algos.vdn``, ``sidewalk.algos.qmix``): they
+replace the per-agent loss by ``QMixerLoss`` on a mixer of the agents' chosen Q-values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
+from tensordict.utils import NestedKey
+from torch import nn
+from torchrl.data import Composite
+from torchrl.envs import EnvBase
+from torchrl.envs.utils import ExplorationType, exploration_type
+from torchrl.modules import MLP, EGreedyModule, MultiAgentNetBase, QValueModule
+from torchrl.objectives import DQNLoss, HardUpdate, LossModule, SoftUpdate, ValueEstimators
+
+from sidewalk.algos.base import MultiAgentAlgorithm, MultiAgentConfig
+from sidewalk.algos.dqn import DQNConfig
+from sidewalk.algos.networks import DuelingHead, is_image_spec, make_encoder
+from sidewalk.envs.base import AGENT_GROUP
+
+ACTION_VALUE_KEY = (AGENT_GROUP, "action_value")
+CHOSEN_ACTION_VALUE_KEY = (AGENT_GROUP, "chosen_action_value")
+
+
+@dataclass
+class IQLConfig(DQNConfig, MultiAgentConfig):
+    """IQL settings: DQN's (``sidewalk.algos.dqn.DQNConfig``, every field and check) for every agent, plus
+    ``share_params``. Each frame is one step of every agent of one world, so a batch of ``batch_size`` transitions
+    trains on ``batch_size × N`` agent-steps; the ε schedule counts frames, as DQN's does.
+
+    The defaults are DQN's against Dijkstra, which learn the two-agent sidewalk in self-play too (README,
+    "Multi-agent learners"): 200 iterations of 4 steps of 128 worlds, 4 gradient steps each.
+    """
+
+    name: str = "iql"
+    frames_per_batch: int = 512
+    default_num_envs: int = 128
+    default_iterations: int = 200
+    default_eval_every: int = 25
+    gamma: float = 0.95
+    lr: float = 5e-4
+    batch_size: int = 128
+    updates_per_batch: int = 4
+    learning_starts: int = 1_000
+    eps_start: float = 1.0
+    eps_end: float = 0.05
+    eps_decay_frames: int = 20_000
+    tau: float = 0.05
+    double_dqn: bool = True
+    loss_function: str = "smooth_l1"
+    eps_ladder: float = 7.0
+    lr_end: float = 5e-5
+    lr_decay_frames: int = 153_600
+
+
+class AgentQNetwork(MultiAgentNetBase):
+    """Per-agent Q-values (..., N, n_actions) from per-agent observations (..., N, *obs): DQN's network (the paper's
+    conv stack for images, the raw vector otherwise; a dueling head or one hidden layer) for every agent, with one
+    set of weights (``share_params``) or one per agent (run together through ``torch.vmap``)."""
+
+    def __init__(
+        self,
+        n_agents: int,
+        observation_shape: torch.Size,
+        is_image: bool,
+        n_actions: int,
+        hidden: int,
+        dueling: bool,
+        share_params: bool,
+        device: torch.device | str = "cpu",
+    ) -> None:
+        self.observation_shape = torch.Size(observation_shape)
+        self.is_image = is_image
+        self.n_actions = n_actions
+        self.hidden = hidden
+        self.dueling = dueling
+        super().__init__(
+            n_agents=n_agents, centralized=False, share_params=share_params,
+            agent_dim=-(len(self.observation_shape) + 1), device=device,
+        )
+
+    def _build_single_net(self, *, device: torch.device | str) -> nn.Module:
+        with torch.device(device):  # also "meta": MultiAgentNetBase builds a parameter-free copy to run
+            encoder = make_encoder(self.observation_shape, self.is_image, channels_last=True)
+            if self.dueling:
+                head: nn.Module = DuelingHead(encoder.out_features, self.n_actions, self.hidden)
+            else:
+                head = MLP(in_features=encoder.out_features, out_features=self.n_actions, num_cells=[self.hidden],
+                           activation_class=nn.ReLU)
+            return nn.Sequential(encoder, head)
+
+    def _pre_forward_check(self, inputs: torch.Tensor) -> torch.Tensor:
+        agents = inputs.shape[self.agent_dim] if inputs.dim() >= -self.agent_dim else None
+        if agents != self.n_agents:
+            raise ValueError(
+                f"expected observations (..., {self.n_agents}, {', '.join(map(str, self.observation_shape))}); "
+                f"got {tuple(inputs.shape)}"
+            )
+        return inputs
+
+
+class LadderEGreedy(EGreedyModule):
+    """TorchRL's ε-greedy over every agent of every world, each with its own ε on a fixed ladder (Ape-X, Horgan
+    et al. 2018: ε_k = ε^(1 + ladder·k/(K-1)) over the K agent slots of a batch), where ε is ``EGreedyModule``'s
+    annealed value. ``ladder=0`` is plain ε-greedy. Agent a of world w takes rung (w + a·⌈B/N⌉) mod B, so every
+    world pairs agents at rungs far apart and every agent plays on every rung in some world."""
+
+    def __init__(self, spec, eps_init: float, eps_end: float, annealing_num_steps: int, ladder: float, **kwargs) -> None:
+        super().__init__(spec, eps_init=eps_init, eps_end=eps_end, annealing_num_steps=annealing_num_steps, **kwargs)
+        self.ladder = float(ladder)
+
+    def rungs(self, shape: torch.Size, device: torch.device) -> torch.Tensor:
+        """Each agent slot's place on the ladder, in [0, 1], for actions of ``shape`` (..., N)."""
+        n_agents = shape[-1]
+        worlds = int(torch.Size(shape[:-1]).numel())
+        agent_shift = -(-worlds // n_agents)
+        rung = (torch.arange(worlds, device=device)[:, None] + agent_shift * torch.arange(n_agents, device=device)) % worlds
+        return (rung / max(worlds - 1, 1)).reshape(shape)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        if exploration_type() not in (ExplorationType.RANDOM, None):
+            return tensordict
+        action = tensordict.get(self.action_key)
+        eps = self.eps ** (1.0 + self.ladder * self.rungs(action.shape, action.device))
+        explore = torch.rand(action.shape, device=action.device) < eps
+        spec = self.spec[self.action_key] if isinstance(self.spec, Composite) else self.spec
+        random_action = torch.randint(0, spec.space.n, action.shape, device=action.device)
+        tensordict.set(self.action_key, torch.where(explore, random_action, action))
+        return tensordict
+
+
+class IQL(MultiAgentAlgorithm):
+    """Independent double DQN for every agent, over the agents' Q-network (``AgentQNetwork``)."""
+
+    Config = IQLConfig
+    uses_replay_buffer = True
+    # What the replay buffer keeps of a transition: the agents' own rewards and the world's done per agent.
+    TRANSITION_KEYS: ClassVar[tuple[NestedKey, ...]] = (
+        MultiAgentAlgorithm.OBSERVATION_KEY, MultiAgentAlgorithm.ACTION_KEY,
+        ("next", *MultiAgentAlgorithm.OBSERVATION_KEY), ("next", *MultiAgentAlgorithm.REWARD_KEY),
+        ("next", *MultiAgentAlgorithm.DONE_KEY), ("next", *MultiAgentAlgorithm.TERMINATED_KEY),
+    )
+
+    def _build(self, env: EnvBase) -> None:
+        cfg: IQLConfig = self.config
+        if not self.discrete_actions:
+            raise ValueError(f"algo={cfg.name} needs a discrete action space (env=discrete); use algo=ippo or algo=mappo")
+        per_agent = self.observation_spec.shape[1:]
+        self.q_network = AgentQNetwork(
+            self.n_agents, per_agent, is_image_spec(self.observation_spec), int(self.action_spec.space.n),
+            cfg.hidden, cfg.dueling, cfg.share_params, device=self.device,
+        )
+        # The action spec with its "agents" level (shape (N,)), as QValueModule and EGreedyModule read nested keys.
+        spec = env.full_action_spec_unbatched.clone().to(self.device)
+        self.actor = TensorDictSequential(
+            TensorDictModule(self.q_network, in_keys=[self.OBSERVATION_KEY], out_keys=[ACTION_VALUE_KEY]),
+            QValueModule(
+                action_value_key=ACTION_VALUE_KEY, out_keys=[self.ACTION_KEY, ACTION_VALUE_KEY, CHOSEN_ACTION_VALUE_KEY],
+                spec=spec, action_space="categorical",
+            ),
+        )
+        self.greedy = LadderEGreedy(
+            spec, eps_init=float(cfg.eps_start), eps_end=float(cfg.eps_end), annealing_num_steps=cfg.eps_decay_frames,
+            ladder=cfg.eps_ladder, action_key=self.ACTION_KEY, device=self.device,
+        )
+        self.explorer = TensorDictSequential(self.actor, self.greedy)
+        self.loss = self._make_loss(env, spec)
+        self.loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma)
+        if cfg.target_update == "soft":
+            self.target_updater = SoftUpdate(self.loss, tau=cfg.tau)
+        else:
+            self.target_updater = HardUpdate(self.loss, value_network_update_interval=cfg.target_period)
+        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr)
+        self.updates = 0
+
+    def _make_loss(self, env: EnvBase, spec) -> LossModule:
+        """DQN's loss on every agent's own reward and done: a (batch, N) TD error, averaged."""
+        cfg: IQLConfig = self.config
+        loss = DQNLoss(
+            self.actor, delay_value=True, double_dqn=cfg.double_dqn, action_space="categorical",
+            loss_function=cfg.loss_function,
+        )
+        loss.set_keys(
+            action_value=ACTION_VALUE_KEY, action=self.ACTION_KEY, value=CHOSEN_ACTION_VALUE_KEY,
+            reward=self.REWARD_KEY, done=self.DONE_KEY, terminated=self.TERMINATED_KEY,
+        )
+        return loss
+
+    def transitions(self, batch: TensorDictBase) -> TensorDictBase:
+        """What the replay buffer keeps of a collected batch, flattened to transitions."""
+        return batch.select(*self.TRANSITION_KEYS).reshape(-1)
+
+    def collection_policy(self) -> TensorDictModuleBase:
+        return self.explorer
+
+    def evaluation_policy(self) -> TensorDictModuleBase:
+        return self.actor
+
+    def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
+        cfg: IQLConfig = self.config
+        self.frames_seen += batch.numel()
+        replay_buffer.extend(self.transitions(batch))
+        # EGreedyModule.step loops once per frame; one call with the decayed value is the same schedule.
+        self.greedy.eps.copy_(
+            torch.clamp(
+                self.greedy.eps_init
+                - (self.greedy.eps_init - self.greedy.eps_end) * self.frames_seen / cfg.eps_decay_frames,
+                min=self.greedy.eps_end,
+            )
+        )
+        # Adam's step size decays linearly to lr_end: the greedy policy settles instead of flipping between near-ties.
+        progress = min(1.0, self.frames_seen / cfg.lr_decay_frames) if cfg.lr_decay_frames else 0.0
+        for group in self.optimizer.param_groups:
+            group["lr"] = cfg.lr + (cfg.lr_end - cfg.lr) * progress
+        logs: dict[str, float] = {"epsilon": float(self.greedy.eps), "lr": self.optimizer.param_groups[0]["lr"]}
+        if len(replay_buffer) < max(cfg.learning_starts, cfg.batch_size):
+            return logs
+        losses = []
+        for _ in range(cfg.updates_per_batch):
+            sample = replay_buffer.sample(cfg.batch_size).to(self.device)
+            loss = self.loss(sample)["loss"]
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.max_grad_norm)
+            self.optimizer.step()
+            self.target_updater.step()
+            losses.append(loss.detach())
+            self.updates += 1
+        logs["loss"] = float(torch.stack(losses).mean()) if losses else float("nan")
+        return logs
+
+    def modules(self) -> dict[str, torch.nn.Module]:
+        return {"loss": self.loss, "greedy": self.greedy}
+
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        return {"adam": self.optimizer}
+
+    def state_dict(self) -> dict[str, Any]:
+        # The target networks' weights live in the loss module; a hard updater also counts steps to its next copy.
+        counter = getattr(self.target_updater, "counter", 0)
+        return {**super().state_dict(), "updates": self.updates, "target_counter": counter}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        super().load_state_dict(state)
+        self.updates = state["updates"]
+        if hasattr(self.target_updater, "counter"):
+            self.target_updater.counter = state["target_counter"]

@@ -1,0 +1,71 @@
+"""QMIX for the discrete Sidewalk in self-play (``opponent=self``): the team's Q-value is a monotone mix of the
+agents', with mixing weights made by hypernetworks from the global state (Rashid et al. 2018; TorchRL's
+``sota-implementations/multiagent/qmix_vdn.py``). VDN's learner (``sidewalk.algos.vdn``) with ``QMixer``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule
+from tensordict.utils import NestedKey
+from torchrl.envs import EnvBase
+from torchrl.modules import QMixer
+
+from sidewalk._checks import check_int
+from sidewalk.algos.iql import CHOSEN_ACTION_VALUE_KEY
+from sidewalk.algos.vdn import TEAM_VALUE_KEY, VDN, VDNConfig
+from sidewalk.views import WORLD
+
+STATE_KEY = "state"  # the mixer's global state (batch, 5·N), stored beside each transition
+
+
+@dataclass
+class QMIXConfig(VDNConfig):
+    """QMIX settings: VDN's plus the mixer's embedding width (32: PyMARL's and TorchRL's example's)."""
+
+    name: str = "qmix"
+    mixing_embed_dim: int = 32
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_int("algo.mixing_embed_dim", self.mixing_embed_dim, 1)
+
+
+class QMIX(VDN):
+    """Q_tot = mixer(Q_1(o_1, a_1), ..., Q_N(o_N, a_N); s), monotone in every Q_i, trained on VDN's team reward.
+
+    The global state ``s`` is the true world the ``"world"`` group reports, which no agent observes whole:
+    every agent's cell and goal, scaled to [0, 1] by the grid's extent, and its presence flag (5·N numbers, in
+    agent order). It is smaller and exact where the agents' images are large and ego-centric.
+    """
+
+    Config = QMIXConfig
+    TRANSITION_KEYS: ClassVar[tuple[NestedKey, ...]] = VDN.TRANSITION_KEYS
+
+    def _make_mixer(self, env: EnvBase) -> TensorDictModule:
+        space = env.full_observation_spec_unbatched[WORLD, "state"].space
+        self._state_low = space.low.to(self.device, torch.float32)
+        self._state_extent = (space.high - space.low).clamp(min=1).to(self.device, torch.float32)
+        cfg: QMIXConfig = self.config
+        mixer = QMixer(
+            state_shape=(5 * self.n_agents,), mixing_embed_dim=cfg.mixing_embed_dim, n_agents=self.n_agents,
+            device=self.device,
+        )
+        return TensorDictModule(mixer, in_keys=[CHOSEN_ACTION_VALUE_KEY, STATE_KEY], out_keys=[TEAM_VALUE_KEY])
+
+    def global_state(self, world: TensorDictBase) -> torch.Tensor:
+        """The mixer's state (..., 5·N) from a ``"world"`` group (..., N): (row, col, goal row, goal col,
+        present) of every agent, cells scaled to [0, 1]."""
+        cell = (world.get("state").to(torch.float32) - self._state_low) / self._state_extent
+        goal = (world.get("goal").to(torch.float32) - self._state_low) / self._state_extent
+        present = world.get("present").to(torch.float32)
+        return torch.cat([cell, goal, present], dim=-1).flatten(-2)
+
+    def transitions(self, batch: TensorDictBase) -> TensorDictBase:
+        kept = super().transitions(batch)
+        kept.set(STATE_KEY, self.global_state(batch.get(WORLD)).reshape(kept.shape[0], -1))
+        kept.set(("next", STATE_KEY), self.global_state(batch.get(("next", WORLD))).reshape(kept.shape[0], -1))
+        return kept
