@@ -9,6 +9,7 @@
     python runners/bench.py budget --baseline f082f2a   # ~6 min: per-iteration time budget, beside a revision
     python runners/bench.py reproduce --baseline 4549d80  # ~15 min: runners/reproduce.sh full's wall-clock, estimated
     python runners/bench.py scenarios --agents 2 4 8 16   # ~3 min: env-steps/s at N agents, ours vs VMAS navigation
+    python runners/bench.py multiagent         # ~12 min: IPPO training frames/s, ours vs TorchRL's VMAS example
 
 Sections: ``env`` (env-steps/s of both domains beside VMAS give_way), ``planning`` (µs per plan per world of the
 scripted planners beside scipy), ``views`` (env-steps/s of the learner views with their opponents), ``training``
@@ -21,7 +22,10 @@ iteration's time goes in the default DQN run and the TRPO run, ``runners/main.py
 another revision: ``--baseline``, ``--seeds``, ``--runs``, ``--trpo-iterations``; not run by default),
 ``reproduce`` (the wall-clock of ``runners/reproduce.sh full`` estimated from measured per-iteration costs,
 optionally beside another revision: ``--baseline``, ``--processes``, ``--probe-iterations``, ``--probe-period``;
-not run by default). Flags after the sections that are not the ones below go
+not run by default), ``multiagent`` (training frames/s of our IPPO self-play on the continuous sidewalk at 4096
+worlds and 1 and 2 threads beside TorchRL's MAPPO/IPPO example on VMAS ``navigation``, two agents, the same networks,
+batch, epochs and minibatches: ``--ma-steps``, ``--ma-iterations``, ``--ma-warmup``, ``--ma-learners``; not run by
+default). Flags after the sections that are not the ones below go
 to the sections that take flags of their own (``learners``: ``--opponent``, ``--frames``, ``--seeds``,
 ``--setups``, ``--learners``, ``--noise``, ``--eval-episodes``; see ``python -m sidewalk.bench.learners -h``).
 A section module has ``run(**kwargs) -> list[dict]``; it may add ``parse_options(argv) -> kwargs`` (its own flags,
@@ -48,6 +52,7 @@ SECTIONS = {
     "budget": "sidewalk.bench.budget",
     "reproduce": "sidewalk.bench.reproduce",
     "scenarios": "sidewalk.bench.scenarios",
+    "multiagent": "sidewalk.bench.multiagent",
 }
 DEFAULT_SECTIONS = ("env", "planning", "views")
 
