@@ -2,12 +2,14 @@
 
 Metric names (every tool reads these keys): ``success_rate``, ``collision_rate`` (any), ``agent_collision_rate``,
 ``wall_collision_rate``, ``timeout_rate``, ``return``, ``episode_length``, ``path_efficiency``,
-``min_separation``, ``wait_steps``; per agent as ``agent0/success_rate``...; in an ego view also ``ego/...`` and
+``min_separation``, ``wait_steps``, ``cost``; per agent as ``agent0/success_rate``...; in an ego view also ``ego/...`` and
 ``other/...``; and for the whole team ``team/success_rate`` (every agent reached its goal), ``makespan`` and
 ``deadlock_rate``.
 
 Definitions: rates are fractions of episodes (per agent, or of agent-episodes for the overall figure); ``return``
-is an agent's undiscounted episode return (its own reward, cooperative term included); ``episode_length`` is
+is an agent's undiscounted episode return (its own reward, cooperative term included); ``cost`` its episode cost
+(the sum of its safety cost ``("world", "cost")`` over the episode: with ``env.cost=collision`` 1 if it collided,
+else 0; near misses add to it with ``env.cost=near_miss``); ``episode_length`` is
 the world's episode length in steps (per agent: steps until that agent was done); ``path_efficiency`` is the
 shortest distance from start to goal over the distance travelled, over agents that reached their goal (grid:
 Manhattan cells, the shortest grid path; continuous: metres to the edge of the goal radius); ``min_separation`` is the smallest distance
@@ -56,6 +58,7 @@ class EpisodeRecord:
 
     info: dict[str, np.ndarray]
     returns: np.ndarray
+    costs: np.ndarray  # (episodes, N): each agent's episode cost
     agent_length: np.ndarray
     world_length: np.ndarray  # (episodes,)
     travelled: np.ndarray
@@ -101,6 +104,7 @@ def run_episodes(
     shortest = (goal - start).abs().sum(-1) if grid else ((goal - start).norm(dim=-1) - core.params.goal_radius_m).clamp(min=0)
     finished = torch.zeros(n_worlds, dtype=torch.bool, device=device)
     returns = torch.zeros(n_worlds, n_agents, device=device)
+    costs = torch.zeros(n_worlds, n_agents, device=device)
     travelled = torch.zeros(n_worlds, n_agents, device=device)
     agent_length = torch.zeros(n_worlds, n_agents, device=device)
     world_length = torch.zeros(n_worlds, device=device)
@@ -132,6 +136,7 @@ def run_episodes(
             moved = (now - previous).abs().sum(-1) if grid else (now - previous).norm(dim=-1)
             live = running.unsqueeze(-1)
             returns += world.get("reward").squeeze(-1) * live
+            costs += world.get("cost").squeeze(-1) * live
             travelled += moved * live
             info = {key: world.get(("info", key)).squeeze(-1) for key in INFO_KEYS}
             in_world = world.get("present").squeeze(-1)
@@ -167,6 +172,7 @@ def run_episodes(
     return EpisodeRecord(
         info={key: value.cpu().numpy() for key, value in final_info.items()},
         returns=returns.cpu().numpy(),
+        costs=costs.cpu().numpy(),
         agent_length=agent_length.cpu().numpy(),
         world_length=world_length.cpu().numpy(),
         travelled=travelled.cpu().numpy(),
@@ -226,6 +232,7 @@ def _group_metrics(record: EpisodeRecord, agents: list[int]) -> dict[str, float]
     collided = record.info["collided_agent"][:, agents] | record.info["collided_wall"][:, agents]
     out["collision_rate"] = float(collided.mean())
     out["return"] = float(record.returns[:, agents].mean())
+    out["cost"] = float(record.costs[:, agents].mean())
     out["episode_length"] = float(record.agent_length[:, agents].mean())
     reached = record.info["reached_goal"][:, agents]
     efficiency = record.shortest[:, agents] / np.maximum(record.travelled[:, agents], 1e-9)

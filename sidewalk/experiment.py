@@ -177,10 +177,16 @@ def make_logger(experiment: Experiment, run_dir: Path):
 
 
 def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:
-    """Outcomes of the episodes that ended inside one collected batch."""
+    """Outcomes of the episodes that ended inside one collected batch, and the safety cost the learner paid in it.
+
+    ``train/cost`` counts every step of the batch, finished episodes or not: the cost the learner's agents (the ego
+    in an ego view, every agent otherwise) paid while learning -- the numerator of Safety Gym's training cost rate.
+    """
+    cost = batch.get(("next", "world", "cost"))  # (..., N, 1)
+    learner_cost = cost.select(-2, ego) if ego is not None else cost
     done = batch.get(("next", "done")).squeeze(-1)
     episodes = int(done.sum())
-    metrics: dict[str, float] = {"train/episodes": float(episodes)}
+    metrics: dict[str, float] = {"train/episodes": float(episodes), "train/cost": float(learner_cost.sum())}
     if episodes == 0:
         return metrics
     reached = batch.get(("next", "world", "info", "reached_goal")).squeeze(-1)[done]  # (episodes, N)
@@ -361,6 +367,7 @@ class Trial:
                 collector.update_policy_weights_()
                 row: dict[str, float] = {"iteration": iteration, "frames": iteration * frames_per_batch}
                 row.update(train_metrics(batch, ego))
+                row["train/cumulative_cost"] = (rows[-1].get("train/cumulative_cost", 0.0) if rows else 0.0) + row["train/cost"]
                 row.update(logs)
                 if exp.eval_every and (iteration % exp.eval_every == 0 or iteration == exp.iterations):
                     rng = capture_rng()  # evaluation must not shift the training stream
@@ -403,11 +410,15 @@ class Trial:
 
         last_eval = {key[len("eval/"):]: value for key, value in rows[-1].items() if key.startswith("eval/")}
         final = last_eval or evaluate(eval_env, algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+        training_cost = rows[-1].get("train/cumulative_cost", 0.0) if rows else 0.0
         summary = {
             **final,
             "seed": exp.seed,
             "iterations": iteration,
             "frames": iteration * frames_per_batch,
+            # Safety Gym's third figure: the cost paid over all of training per frame (world-step) collected.
+            "train_cost": training_cost,
+            "cost_rate": training_cost / max(iteration * frames_per_batch, 1),
             "wall_clock_s": time.perf_counter() - started,
             "versions": package_versions(),
             "git_revision": revision,

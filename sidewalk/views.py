@@ -17,6 +17,7 @@ and plots (every agent, in agent order, batch shape (B, N)):
 - ``("world", "state")`` / ``("world", "goal")``: the true state and goal of every agent (no observation noise);
 - ``("world", "present")``: the agent occupies space (moving, or parked at its goal; not crashed and removed);
 - ``("world", "reward")``: every agent's own reward of the step, (B, N, 1), zero on reset;
+- ``("world", "cost")``: every agent's safety cost of the step (the core's ``("agents", "cost")``), (B, N, 1);
 - ``("world", "info", k)`` for ``k`` in ``INFO_KEYS`` (``reached_goal``, ``collided_agent``, ``collided_wall``,
   ``timed_out``): the sticky per-episode outcome flags, (B, N, 1) bool.
 
@@ -144,6 +145,7 @@ class _SidewalkView(EnvBase):
             goal=core_agents["goal"].clone(),
             present=core_agents["present"].clone(),
             reward=self.core.full_reward_spec[AGENT_GROUP, "reward"].clone(),
+            cost=core_agents["cost"].clone(),
             info=core_agents["info"].clone(),
             shape=self._agents_shape,
             device=self.device,
@@ -212,6 +214,7 @@ class _SidewalkView(EnvBase):
                 "goal": agents.get("goal"),
                 "present": agents.get("present"),
                 "reward": reward,
+                "cost": agents.get("cost"),
                 "info": agents.get("info"),
             },
             batch_size=self._agents_shape,
@@ -227,7 +230,8 @@ class EgoView(_SidewalkView):
 
     Keys (batch shape (B,)): ``observation`` (the ego's observation, as the core gives it), ``action`` (the ego's
     action: Categorical(4) in the grid, Bounded (acceleration, turn) in the continuous world), ``reward`` (B, 1)
-    (the ego's reward, cooperative term included), ``done``/``terminated``/``truncated`` (B, 1), the ego's outcome
+    (the ego's reward, cooperative term included), ``cost`` (B, 1) (the ego's safety cost of the step, 0 on reset),
+    ``done``/``terminated``/``truncated`` (B, 1), the ego's outcome
     flags ``("info", k)`` (B, 1) and the ``"world"`` group of every agent (see the module docstring).
 
     By default the ego's episode is the world's: it ends when every agent is done or at the timeout, so rewards
@@ -286,6 +290,7 @@ class EgoView(_SidewalkView):
         ego = self.ego
         self.observation_spec = Composite(
             observation=core_agents["observation"].unbind(1)[ego].clone(),
+            cost=core_agents["cost"].unbind(1)[ego].clone(),
             info=core_agents["info"].unbind(1)[ego].clone(),
             world=self._world_spec(),
             shape=self.batch_size,
@@ -323,6 +328,7 @@ class EgoView(_SidewalkView):
         out = TensorDict._new_unsafe(
             {
                 "observation": agents.get("observation").select(1, ego),
+                "cost": agents.get("cost").select(1, ego),
                 "info": TensorDict._new_unsafe(
                     {key: info.get(key).select(1, ego) for key in INFO_KEYS}, batch_size=self.batch_size
                 ),
@@ -347,7 +353,7 @@ class CentralizedView(_SidewalkView):
       (acceleration, turn) pairs concatenated, (B, 2N) Bounded: ``[a0_accel, a0_turn, a1_accel, a1_turn]``.
     - ``observation``: agent 0's observation (it shows every agent and goal).
     - ``reward`` (B, 1): the sum of the agents' rewards (each one's own reward, cooperative term included);
-      ``("world", "reward")`` keeps them apart.
+      ``("world", "reward")`` keeps them apart. ``cost`` (B, 1): the sum of the agents' safety costs, likewise.
     - ``done``/``terminated``/``truncated`` (B, 1): the world's.
     """
 
@@ -373,6 +379,7 @@ class CentralizedView(_SidewalkView):
         batch = self.batch_size
         self.observation_spec = Composite(
             observation=core_agents["observation"].unbind(1)[0].clone(),
+            cost=core_agents["cost"].unbind(1)[0].clone(),
             world=self._world_spec(),
             shape=batch,
             device=self.device,
@@ -420,6 +427,7 @@ class CentralizedView(_SidewalkView):
         out = TensorDict._new_unsafe(
             {
                 "observation": agents.get("observation").select(1, 0),
+                "cost": agents.get("cost").sum(1),
                 WORLD: self._world(agents, reward),
                 "done": core_out.get("done"),
                 "terminated": core_out.get("terminated"),
@@ -437,7 +445,7 @@ class SelfPlayView(_SidewalkView):
 
     Keys (batch shape (B,), agents group (B, N)): ``("agents", "observation")`` (each agent's ego-centric
     observation), ``("agents", "action")``, ``("agents", "reward")`` (each agent's own reward, cooperative term
-    included), ``("agents", "done"|"terminated"|"truncated")`` and the root ``done``/``terminated``/``truncated``
+    included), ``("agents", "cost")`` (each agent's safety cost of the step), ``("agents", "done"|"terminated"|"truncated")`` and the root ``done``/``terminated``/``truncated``
     (B, 1), plus the ``"world"`` group (see the module docstring).
 
     The agents' done flags are the *world's*, expanded to every agent, as in TorchRL's multi-agent examples (VMAS):
@@ -458,8 +466,8 @@ class SelfPlayView(_SidewalkView):
         done = self.core.full_done_spec
         agent_done = {key: done[AGENT_GROUP, key].clone() for key in ("done", "terminated", "truncated")}
         self.observation_spec = Composite(
-            {AGENT_GROUP: Composite(observation=core_agents["observation"].clone(), shape=agents_shape,
-                                    device=self.device),
+            {AGENT_GROUP: Composite(observation=core_agents["observation"].clone(),
+                                    cost=core_agents["cost"].clone(), shape=agents_shape, device=self.device),
              WORLD: self._world_spec()},
             shape=self.batch_size,
             device=self.device,
@@ -493,7 +501,7 @@ class SelfPlayView(_SidewalkView):
         )
         flags = {key: core_out.get(key) for key in ("done", "terminated", "truncated")}
         per_agent = {key: value.unsqueeze(1).expand(*self._agents_shape, 1) for key, value in flags.items()}
-        group = {"observation": agents.get("observation"), **per_agent}
+        group = {"observation": agents.get("observation"), "cost": agents.get("cost"), **per_agent}
         if not reset:
             group["reward"] = reward
         return TensorDict._new_unsafe(

@@ -8,6 +8,8 @@ A subclass supplies the dynamics through four hooks, VMAS-style:
   alike -- back at their start;
 - ``_advance(action, active)``: move the agents one step and report, per agent (B, N), who reached its goal,
   who hit a wall, who hit another agent, and the shaping term of the step;
+- ``_near_miss()``: bool (B, N), after a step: the agent is within ``near_miss_margin`` of another agent in the
+  world (the near-miss cost, ``cost="near_miss"``);
 - ``_observe(worlds)``: the per-agent entries ``observation``, ``state`` and ``goal`` of every world (``worlds`` None)
   or of the rows ``worlds`` (int64 (k,)) only: on a partial reset the base computes the worlds just reset and gives
   every other world back exactly what the last output gave it. Random draws (observation noise) stay those of
@@ -38,6 +40,8 @@ from sidewalk.envs.rewards import RewardParams, compose_reward
 
 AGENT_GROUP = "agents"
 INFO_KEYS = ("reached_goal", "collided_agent", "collided_wall", "timed_out")
+# What the per-step safety cost ("agents", "cost") counts (env.cost): collisions only, or near misses too.
+COSTS = ("collision", "near_miss")
 HUGE_PAGE_BYTES = 4 << 20  # NumPy advises huge pages for arrays from 4 MiB on
 
 
@@ -87,6 +91,9 @@ class SidewalkEnvBase(EnvBase):
     Keys follow TorchRL's multi-agent layout: the group ``"agents"`` (batch shape (B, N)) holds
     ``observation``, ``state`` (the true state, before observation noise), ``goal``, ``present`` (the agent
     occupies space in the world: moving, or parked at its goal; not crashed and removed), ``action``, ``reward``,
+    ``cost`` (the safety cost of the step, float (B, N, 1): 1 when the agent collided with a wall or another agent
+    in the step, with ``cost="near_miss"`` also when it ended the step within ``near_miss_margin`` of another agent,
+    else 0; only agents not yet done pay it; 0 on reset),
     per-agent ``done``/``terminated``/``truncated`` and ``info`` (sticky per-episode outcome flags
     ``reached_goal``, ``collided_agent``, ``collided_wall``, ``timed_out``); the root holds the global
     ``done``/``terminated``/``truncated`` (shape (B, 1)).
@@ -156,6 +163,9 @@ class SidewalkEnvBase(EnvBase):
     def _observe(self, worlds: torch.Tensor | None) -> dict[str, torch.Tensor]:
         raise NotImplementedError
 
+    def _near_miss(self) -> torch.Tensor:
+        raise NotImplementedError
+
     def _agent_specs(self) -> tuple[dict[str, Any], Any]:
         """The per-agent observation specs (``observation``, ``state``, ``goal``) and the action spec."""
         raise NotImplementedError
@@ -170,7 +180,8 @@ class SidewalkEnvBase(EnvBase):
             return Categorical(2, shape=(*shape, 1), dtype=torch.bool, device=self.device)
 
         info = Composite({key: flag(agents) for key in INFO_KEYS}, shape=agents, device=self.device)
-        agent_specs = {**observation_specs, "present": flag(agents), "info": info}
+        cost = Unbounded(shape=(*agents, 1), device=self.device)
+        agent_specs = {**observation_specs, "present": flag(agents), "cost": cost, "info": info}
         self.observation_spec = Composite(
             {AGENT_GROUP: Composite(agent_specs, shape=agents, device=self.device)},
             shape=batch,
@@ -259,9 +270,12 @@ class SidewalkEnvBase(EnvBase):
             shaping_term,
             self._shaping_weight,
         )
+        cost = collided_now
+        if self.params.cost == "near_miss":
+            cost = cost | (active & self._near_miss())
         self._active = active = active & ~(reached_now | collided_now)
         self._steps = self._steps + 1
-        return self._output(reward, None)
+        return self._output(reward, None, cost)
 
     def _observations(self, rows: torch.Tensor | None) -> dict[str, torch.Tensor]:
         """``_observe``'s entries of every world; on a reset (``rows``: bool (B,), the worlds reset) only the reset
@@ -286,8 +300,11 @@ class SidewalkEnvBase(EnvBase):
         self._last_observed = entries
         return dict(entries)
 
-    def _output(self, reward: torch.Tensor | None, rows: torch.Tensor | None) -> TensorDictBase:
-        """The env's output for every world, from the current state; ``rows`` (B,) marks the worlds a reset reset."""
+    def _output(
+        self, reward: torch.Tensor | None, rows: torch.Tensor | None, cost: torch.Tensor | None = None
+    ) -> TensorDictBase:
+        """The env's output for every world, from the current state; ``rows`` (B,) marks the worlds a reset reset;
+        ``cost`` (B, N) bool: who paid the safety cost in the step (None on reset: nobody)."""
         agents_shape = torch.Size((*self.batch_size, self.n_agents))
         terminated = ~self._active
         all_terminated = terminated.all(-1)
@@ -298,6 +315,10 @@ class SidewalkEnvBase(EnvBase):
         world_truncated = timeout & ~all_terminated
         entries = self._observations(rows)
         entries["present"] = self._present.unsqueeze(-1)
+        entries["cost"] = (
+            cost.to(torch.float32).unsqueeze(-1) if cost is not None
+            else torch.zeros((*agents_shape, 1), device=self.device)
+        )
         entries["info"] = TensorDict._new_unsafe(
             {key: value.unsqueeze(-1) for key, value in self._status.items()}, batch_size=agents_shape
         )

@@ -11,7 +11,7 @@ from torchrl.data import Bounded, Categorical
 from torchrl.data.tensor_specs import BoundedDiscrete
 
 from sidewalk._checks import check_choice, check_int, check_range
-from sidewalk.envs.base import SidewalkEnvBase, new_output
+from sidewalk.envs.base import COSTS, SidewalkEnvBase, new_output
 from sidewalk.envs.layouts import GridLayout, RandomGridLayout, grid_layout
 from sidewalk.envs.rewards import RewardParams
 
@@ -78,6 +78,8 @@ class DiscreteParams:
     pixels_per_cell: int = 2
     max_steps: int = 300
     remove_crashed: bool = True  # a crashed agent leaves the world; False keeps it as an obstacle
+    cost: str = "collision"  # the safety cost ("agents", "cost"): "collision", or "near_miss" (collisions too)
+    near_miss_margin: float = 1.0  # cost="near_miss": another agent within this many cells (Euclidean, centres)
     rewards: RewardParams = field(default_factory=RewardParams)
 
     def __post_init__(self) -> None:
@@ -89,6 +91,8 @@ class DiscreteParams:
         check_choice("observation", self.observation, OBSERVATIONS)
         check_int("pixels_per_cell", self.pixels_per_cell, 1, 32)
         check_int("max_steps", self.max_steps, 1)
+        check_choice("cost", self.cost, COSTS)
+        check_range("near_miss_margin", self.near_miss_margin, 0.0, low_open=True)
         if not isinstance(self.remove_crashed, bool):
             raise TypeError(f"remove_crashed={self.remove_crashed!r} must be a bool")
         if not isinstance(self.rewards, RewardParams):
@@ -290,6 +294,13 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
             after = self._path_length[new_row * self.cols + new_col, goal_cell]
             shaping = shaping + self._c_progress * (before - after)
         return reached, hit_wall, hit_agent, shaping
+
+    def _near_miss(self) -> torch.Tensor:
+        row, col = self._row.t().to(torch.float32), self._col.t().to(torch.float32)  # (N, B): agent-major
+        gap_sq = (row.unsqueeze(1) - row.unsqueeze(0)).square() + (col.unsqueeze(1) - col.unsqueeze(0)).square()
+        present = self._present.t().unsqueeze(0)
+        near = (gap_sq <= self.params.near_miss_margin**2) & present & self._not_self
+        return near.any(1).t() & self._present
 
     def _observe(self, worlds: torch.Tensor | None) -> dict[str, torch.Tensor]:
         # Grid observations are a deterministic function of the state: a reset observes its worlds only.

@@ -10,8 +10,8 @@ import numpy as np
 import torch
 from torchrl.data import Bounded, Unbounded
 
-from sidewalk._checks import check_int, check_range
-from sidewalk.envs.base import SidewalkEnvBase, new_output
+from sidewalk._checks import check_choice, check_int, check_range
+from sidewalk.envs.base import COSTS, SidewalkEnvBase, new_output
 from sidewalk.envs.layouts import PlaneLayout, RandomPlaneLayout, plane_layout
 from sidewalk.envs.rewards import RewardParams
 
@@ -46,6 +46,8 @@ class ContinuousParams:
     max_steps: int = 300
     remove_crashed: bool = True
     check_actions: bool = True  # a non-finite action raises, naming its worlds, rather than turning them NaN
+    cost: str = "collision"  # the safety cost ("agents", "cost"): "collision", or "near_miss" (collisions too)
+    near_miss_margin: float = 0.3  # cost="near_miss": another agent's disc within this many metres of the agent's
     rewards: RewardParams = field(default_factory=RewardParams)
 
     def __post_init__(self) -> None:
@@ -61,6 +63,8 @@ class ContinuousParams:
         check_range("max_turn_rad", self.max_turn_rad, 0.0, math.pi, low_open=True)
         check_range("noise", self.noise, 0.0, 10.0)
         check_int("max_steps", self.max_steps, 1)
+        check_choice("cost", self.cost, COSTS)
+        check_range("near_miss_margin", self.near_miss_margin, 0.0, low_open=True)
         for name in ("remove_crashed", "check_actions"):
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name}={getattr(self, name)!r} must be a bool")
@@ -233,6 +237,13 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         pairs = self._self_pairs.expand(n * n, batch).clone()
         pairs.index_copy_(0, self._pair_rows, torch.cat([contact, contact]))
         return pairs.view(n, n, batch)
+
+    def _near_miss(self) -> torch.Tensor:
+        x, y = self._x.t(), self._y.t()  # (N, B): agent-major
+        gap_sq = (x.unsqueeze(1) - x.unsqueeze(0)).square() + (y.unsqueeze(1) - y.unsqueeze(0)).square()
+        reach = 2 * self.params.agent_radius_m + self.params.near_miss_margin
+        near = (gap_sq < reach**2) & self._present.t().unsqueeze(0) & self._not_self
+        return near.any(1).t() & self._present
 
     def _touches_box(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         """Bool (B, N): the agent's disc overlaps an interior box."""
