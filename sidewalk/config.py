@@ -31,6 +31,7 @@ OPPONENT_DOMAINS = {
 }
 ALGO_DOMAINS = {
     "dqn": ("discrete",), "trpo": DOMAINS, "ppo": DOMAINS,
+    "ppo_lagrangian": DOMAINS,
     "ippo": DOMAINS, "mappo": DOMAINS, "iql": ("discrete",), "vdn": ("discrete",), "qmix": ("discrete",),
 }
 LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
@@ -109,6 +110,7 @@ class ExperimentSchema:
     resume: bool = False
     keep_checkpoint: str = "final"
     torch_threads: int = 1
+    shield: bool = False
 
 
 def with_schema_defaults(cfg: DictConfig) -> DictConfig:
@@ -160,6 +162,7 @@ class Experiment:
     resume: bool
     keep_checkpoint: str
     torch_threads: int
+    shield: bool = False  # the safety shield guards the learner's actions (training and evaluation)
 
 
 def _field_names(schema: type) -> list[str]:
@@ -196,6 +199,8 @@ def validate(cfg: DictConfig) -> Experiment:
     check_int("checkpoint_every", cfg.checkpoint_every, 0)
     check_int("torch_threads", cfg.torch_threads, 1)
     check_choice("keep_checkpoint", cfg.keep_checkpoint, KEEP_CHECKPOINT)
+    if not isinstance(cfg.shield, bool):
+        raise TypeError(f"shield={cfg.shield!r} must be true or false")
     if not str(cfg.device).startswith(("cpu", "cuda", "mps")):
         raise ValueError(f"device={cfg.device!r} is not valid; valid: 'cpu', 'cuda', 'cuda:N', 'mps'")
 
@@ -290,4 +295,5 @@ def validate(cfg: DictConfig) -> Experiment:
         resume=bool(cfg.resume),
         keep_checkpoint=str(cfg.keep_checkpoint),
         torch_threads=cfg.torch_threads,
+        shield=bool(cfg.shield),
     )

@@ -70,15 +70,16 @@ def make_view(experiment: Experiment, num_envs: int, seed: int) -> EnvBase:
     core_cls = DiscreteSidewalkEnv if experiment.domain == "discrete" else ContinuousSidewalkEnv
     core = core_cls(num_envs, device=experiment.device, seed=seed, params=experiment.env_params)
     if experiment.opponent == "centralized":
-        return CentralizedView(core)
+        return CentralizedView(core, shield=experiment.shield)
     if experiment.opponent == "self":
-        return SelfPlayView(core)
+        return SelfPlayView(core, shield=experiment.shield)
     return EgoView(
         core,
         opponent=experiment.opponent,
         ego=experiment.ego,
         end_on_ego_done=experiment.end_on_ego_done,
         opponent_kwargs=experiment.opponent_params,
+        shield=experiment.shield,
     )
 
 
@@ -187,6 +188,10 @@ def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:
     done = batch.get(("next", "done")).squeeze(-1)
     episodes = int(done.sum())
     metrics: dict[str, float] = {"train/episodes": float(episodes), "train/cost": float(learner_cost.sum())}
+    shielded = batch.get(("next", "world", "shield"), None)
+    if shielded is not None:  # shield=true: the fraction of the learner's steps whose action the shield replaced
+        learner_shielded = shielded.select(-2, ego) if ego is not None else shielded
+        metrics["train/shield_rate"] = float(learner_shielded.float().mean())
     if episodes == 0:
         return metrics
     reached = batch.get(("next", "world", "info", "reached_goal")).squeeze(-1)[done]  # (episodes, N)

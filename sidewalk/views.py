@@ -10,6 +10,11 @@ Three views of one batched core env (``DiscreteSidewalkEnv`` or ``ContinuousSide
   learners (IPPO, MAPPO, IQL, VDN, QMIX);
 - the all-agents view is the multi-agent core env itself (``make_view("all", env)`` returns it).
 
+Every view takes ``shield=True``: before the core steps, the safety shield (the core's ``shield_action``, a one-step
+look-ahead on the known dynamics) replaces the learner's actions that would collide -- the ego's in an ego view,
+every agent's in the others -- with the nearest safe ones. The shield is part of the environment the learner sees:
+the learner's own action stays in its data, and its evaluation runs shielded too.
+
 The wrappers are thin ``EnvBase`` subclasses over the core's tensors: one step is a fixed sequence of tensor
 operations for all B worlds, and the specs are built once. They carry the same ``"world"`` group for evaluation
 and plots (every agent, in agent order, batch shape (B, N)):
@@ -18,6 +23,8 @@ and plots (every agent, in agent order, batch shape (B, N)):
 - ``("world", "present")``: the agent occupies space (moving, or parked at its goal; not crashed and removed);
 - ``("world", "reward")``: every agent's own reward of the step, (B, N, 1), zero on reset;
 - ``("world", "cost")``: every agent's safety cost of the step (the core's ``("agents", "cost")``), (B, N, 1);
+- ``("world", "shield")`` (only with ``shield=True``): bool (B, N, 1), the shield replaced that agent's action in the
+  step (``SidewalkEnvBase.shield_action``);
 - ``("world", "info", k)`` for ``k`` in ``INFO_KEYS`` (``reached_goal``, ``collided_agent``, ``collided_wall``,
   ``timed_out``): the sticky per-episode outcome flags, (B, N, 1) bool.
 
@@ -122,12 +129,18 @@ class _SidewalkView(EnvBase):
     is stateful (its worlds live in its tensors), and an opponent reads the agents' state and done flags from it.
     """
 
-    def __init__(self, env: SidewalkEnvBase) -> None:
+    def __init__(self, env: SidewalkEnvBase, shield: bool = False) -> None:
         if not isinstance(env, SidewalkEnvBase):
             raise TypeError(
                 f"env={env!r} must be a Sidewalk core env (DiscreteSidewalkEnv or ContinuousSidewalkEnv)"
             )
+        if not isinstance(shield, bool):
+            raise TypeError(f"shield={shield!r} must be a bool")
         super().__init__(device=env.device, batch_size=env.batch_size)
+        self.shield = shield
+        # The agents the shield guards: the learner's (every agent here; the ego view narrows it to the ego).
+        self._shielded = torch.ones(env.n_agents, dtype=torch.bool, device=env.device)
+        self._intervened: torch.Tensor | None = None
         self.core = env
         self.n_agents = env.n_agents
         self.num_envs = env.num_envs
@@ -140,7 +153,9 @@ class _SidewalkView(EnvBase):
 
     def _world_spec(self) -> Composite:
         core_agents = self.core.observation_spec[AGENT_GROUP]
+        extra = {"shield": core_agents["present"].clone()} if self.shield else {}
         return Composite(
+            **extra,
             state=core_agents["state"].clone(),
             goal=core_agents["goal"].clone(),
             present=core_agents["present"].clone(),
@@ -175,6 +190,7 @@ class _SidewalkView(EnvBase):
         # last step left them (observation noise included), so this view's output is complete too.
         core_out = self.core._reset(tensordict)
         self._on_reset(rows)
+        self._intervened = None
         self._last = core_out
         return self._output(core_out, reset=True)
 
@@ -188,6 +204,9 @@ class _SidewalkView(EnvBase):
             raise RuntimeError(f"{type(self).__name__}.step() was called before reset()")
         last.set((AGENT_GROUP, "action"), self._joint_action(tensordict.get(self._view_action_key)))
         self._before_core_step(last)
+        if self.shield:
+            safe, self._intervened = self.core.shield_action(last.get((AGENT_GROUP, "action")), self._shielded)
+            last.set((AGENT_GROUP, "action"), safe)
         core_out = self.core._step(last)
         self._last = core_out
         return self._output(core_out, reset=False)
@@ -208,8 +227,16 @@ class _SidewalkView(EnvBase):
         raise NotImplementedError
 
     def _world(self, agents: TensorDictBase, reward: torch.Tensor) -> TensorDictBase:
+        extra = {}
+        if self.shield:
+            intervened = self._intervened
+            extra["shield"] = (
+                intervened.unsqueeze(-1) if intervened is not None
+                else torch.zeros((*self._agents_shape, 1), dtype=torch.bool, device=self.device)
+            )
         return TensorDict._new_unsafe(
             {
+                **extra,
                 "state": agents.get("state"),
                 "goal": agents.get("goal"),
                 "present": agents.get("present"),
@@ -251,12 +278,14 @@ class EgoView(_SidewalkView):
         ego: int = 0,
         end_on_ego_done: bool = False,
         opponent_kwargs: Mapping[str, Any] | None = None,
+        shield: bool = False,
     ) -> None:
-        super().__init__(env)
+        super().__init__(env, shield=shield)
         check_int("ego", ego, 0, env.n_agents - 1)
         if not isinstance(end_on_ego_done, bool):
             raise TypeError(f"end_on_ego_done={end_on_ego_done!r} must be a bool")
         self.ego = ego
+        self._shielded = torch.arange(env.n_agents, device=env.device) == ego
         self.others = tuple(agent for agent in range(env.n_agents) if agent != ego)
         self.end_on_ego_done = end_on_ego_done
         self.opponent = self._resolve_opponent(opponent, dict(opponent_kwargs or {}))
@@ -357,8 +386,8 @@ class CentralizedView(_SidewalkView):
     - ``done``/``terminated``/``truncated`` (B, 1): the world's.
     """
 
-    def __init__(self, env: SidewalkEnvBase) -> None:
-        super().__init__(env)
+    def __init__(self, env: SidewalkEnvBase, shield: bool = False) -> None:
+        super().__init__(env, shield=shield)
         core_action = self.core.full_action_spec[AGENT_GROUP, "action"]
         if self.domain == "discrete":
             n_moves = core_action.space.n
@@ -455,8 +484,8 @@ class SelfPlayView(_SidewalkView):
     flags are in ``("world", "info")``.
     """
 
-    def __init__(self, env: SidewalkEnvBase) -> None:
-        super().__init__(env)
+    def __init__(self, env: SidewalkEnvBase, shield: bool = False) -> None:
+        super().__init__(env, shield=shield)
         self._view_action_key = (AGENT_GROUP, "action")
         self._make_spec()
 
@@ -563,6 +592,7 @@ def make_view(
     env: SidewalkEnvBase,
     opponent: str | Opponent | None = None,
     ego: int | None = None,
+    shield: bool = False,
     **kwargs: Any,
 ) -> EnvBase:
     """The view ``kind`` of ``env``: ``"ego"`` (``EgoView``; ``opponent`` defaults to ``"random"``, ``kwargs`` go
@@ -570,7 +600,8 @@ def make_view(
     multi-agent core env itself).
 
     ``opponent`` and ``ego`` (default 0) apply only to ``"ego"``; giving either to another view is an error, as is
-    an opponent that does not play the env's domain.
+    an opponent that does not play the env's domain. ``shield=True`` shields the learner's actions (every view but
+    ``"all"``, the bare core, which has no learner to shield).
     """
     check_choice("kind", kind, VIEW_KINDS)
     if not isinstance(env, SidewalkEnvBase):
@@ -579,7 +610,8 @@ def make_view(
         )
     if kind == "ego":
         return EgoView(
-            env, opponent="random" if opponent is None else opponent, ego=0 if ego is None else ego, **kwargs
+            env, opponent="random" if opponent is None else opponent, ego=0 if ego is None else ego, shield=shield,
+            **kwargs,
         )
     if opponent is not None and not (kind == "centralized" and opponent == "centralized"):
         raise ValueError(
@@ -592,7 +624,9 @@ def make_view(
     if kwargs:
         raise TypeError(f"unexpected argument(s) {', '.join(map(repr, kwargs))} for the {kind!r} view")
     if kind == "centralized":
-        return CentralizedView(env)
+        return CentralizedView(env, shield=shield)
     if kind == "self":
-        return SelfPlayView(env)
+        return SelfPlayView(env, shield=shield)
+    if shield:
+        raise ValueError("the 'all' view is the bare core env: call env.shield_action, or use kind='self' with shield=True")
     return env

@@ -166,6 +166,14 @@ class SidewalkEnvBase(EnvBase):
     def _near_miss(self) -> torch.Tensor:
         raise NotImplementedError
 
+    def shield_action(self, action: torch.Tensor, shielded: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The safety shield (``shield=true``): the joint action ``action`` (B, N[, 2]) about to be stepped, with
+        every agent's action that a one-step look-ahead on the known dynamics finds unsafe replaced by the nearest
+        safe one, for the agents marked in ``shielded`` (bool (N,)); and bool (B, N): where it replaced one. Only
+        agents still moving are shielded. The domains define safe: no wall hit, and no contact with any other
+        agent wherever that agent can be after the step (its worst case)."""
+        raise NotImplementedError
+
     def _agent_specs(self) -> tuple[dict[str, Any], Any]:
         """The per-agent observation specs (``observation``, ``state``, ``goal``) and the action spec."""
         raise NotImplementedError

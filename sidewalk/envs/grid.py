@@ -295,6 +295,44 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
             shaping = shaping + self._c_progress * (before - after)
         return reached, hit_wall, hit_agent, shaping
 
+    def shield_action(self, action: torch.Tensor, shielded: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The grid's shield (see the base class). A move is wall-safe when it stays on the grid and off interior
+        walls, and agent-safe when it ends outside every cell another agent can hold after the step: its cell (it may
+        stay parked at its goal, or swap with us) and, while it moves, its four neighbours (any of its moves, noise
+        included: four cells are cheap to rule out). An unsafe action gives way to a safe one, nearest first: the
+        two perpendicular moves (the one that brings the agent closer to its goal first), then the reverse. Where
+        no move is agent-safe, a wall-safe one is taken: the shield never steps into a wall while a free cell is
+        next to the agent (a grid cell always has one unless walls enclose it). The env's action noise acts after the
+        shield, so with ``noise`` > 0 a replaced action can still hit a wall."""
+        n_moves = len(ACTIONS)
+        row, col = self._row.unsqueeze(-1), self._col.unsqueeze(-1)  # (B, N, 1)
+        target_row, target_col = row + self._move_row, col + self._move_col  # (B, N, 4)
+        wall_safe = (target_row >= 0) & (target_row < self.rows) & (target_col >= 0) & (target_col < self.cols)
+        target = target_row.clamp(0, self.rows - 1) * self.cols + target_col.clamp(0, self.cols - 1)
+        if self._has_blocked:
+            wall_safe = wall_safe & ~self._blocked[target]
+        # Cells another agent may hold after the step: (B, N, 5) -- its own, then its four neighbours while active.
+        reach_row = torch.cat([row, torch.where(self._active.unsqueeze(-1), target_row, row)], -1)
+        reach_col = torch.cat([col, torch.where(self._active.unsqueeze(-1), target_col, col)], -1)
+        reach = torch.where(self._present.unsqueeze(-1), reach_row * self.cols + reach_col, -1)
+        # (B, i, a, j, c): agent i's move a lands on cell c that agent j may hold.
+        hits = target.unsqueeze(-1).unsqueeze(-1) == reach.unsqueeze(1).unsqueeze(1)
+        hits = hits & self._not_self.squeeze(-1)[None, :, None, :, None]
+        agent_safe = ~hits.flatten(-2).any(-1)
+        safe = wall_safe & agent_safe
+        proposed = action.unsqueeze(-1)  # (B, N, 1)
+        moves = torch.arange(n_moves, device=self.device)
+        same = moves == proposed
+        # Perpendicular: UP/DOWN (0, 1) against LEFT/RIGHT (2, 3).
+        perpendicular = (moves // 2) != (proposed // 2)
+        to_goal = (self._goal_row.unsqueeze(-1) - target_row).abs() + (self._goal_col.unsqueeze(-1) - target_col).abs()
+        closer = to_goal < ((self._goal_row - self._row).abs() + (self._goal_col - self._col).abs()).unsqueeze(-1)
+        score = 64 * safe + 32 * wall_safe + 8 * same + 4 * perpendicular + 2 * closer
+        chosen = score.argmax(-1)
+        guard = shielded.unsqueeze(0) & self._active
+        intervened = guard & (chosen != action)
+        return torch.where(intervened, chosen, action), intervened
+
     def _near_miss(self) -> torch.Tensor:
         row, col = self._row.t().to(torch.float32), self._col.t().to(torch.float32)  # (N, B): agent-major
         gap_sq = (row.unsqueeze(1) - row.unsqueeze(0)).square() + (col.unsqueeze(1) - col.unsqueeze(0)).square()

@@ -238,6 +238,88 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         pairs.index_copy_(0, self._pair_rows, torch.cat([contact, contact]))
         return pairs.view(n, n, batch)
 
+    SHIELD_LEVELS = 5  # the shield's candidate corrections: a 5 × 5 grid of (acceleration, turn) within the bounds
+
+    def shield_action(self, action: torch.Tensor, shielded: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The continuous shield (see the base class). Each candidate action -- the proposed one, braking at the
+        proposed turn, then a 5 × 5 grid of (acceleration, turn) over the bounds -- is stepped on the known
+        dynamics. It is wall-safe when the disc after the step, the point where full braking from there would stop it
+        and the midpoint between them stay inside the walls and off the boxes: a one-step look-ahead alone lets an
+        agent at full speed reach a place from which it cannot stop before the wall (0.4 m of braking from 1 m/s at
+        the SPEC's bounds). It is agent-safe when the agent's path in the step keeps two radii from everywhere another
+        agent can be after the step: a disc of radius (|v| + a_max·dt)·dt around it while it moves (its worst case
+        over every action and any action noise, which the bounds clip), its own disc when parked. With action noise
+        ±ε a candidate must be safe at the four corners of its noise box too (the step is monotone in acceleration
+        and, over turns this small, in the turn), so noise the shield can absorb does not defeat it.
+
+        The nearest (in units of the bounds) candidate that is safe under noise replaces an unsafe action; where
+        none is, the nearest safe without noise; then the nearest wall-safe one; then braking. A one-step look-ahead
+        cannot always leave a way out (an agent cornered by the other's worst case), and noise larger than the
+        room it leaves defeats it: tests/test_safety.py measures how often a collision still happens."""
+        p = self.params
+        high = self._action_high
+        proposed = torch.maximum(torch.minimum(action, high), -high)  # (B, N, 2)
+        levels = torch.linspace(-1.0, 1.0, self.SHIELD_LEVELS, device=self.device)
+        grid = torch.cartesian_prod(levels, levels) * high  # (K, 2)
+        brake = torch.stack([-torch.sign(self._speed) * p.max_accel_mps2, proposed[..., 1]], -1)
+        batch, n = self.num_envs, self.n_agents
+        candidates = torch.cat([proposed.unsqueeze(2), brake.unsqueeze(2), grid.expand(batch, n, -1, 2)], 2)
+
+        wall_safe, clearance = self._look_ahead(candidates)
+        safe = wall_safe & (clearance >= 0)
+        robust = safe
+        if p.noise > 0.0:
+            for corner in ((1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)):
+                noisy = candidates + torch.tensor(corner, device=self.device) * p.noise
+                corner_wall, corner_clearance = self._look_ahead(torch.maximum(torch.minimum(noisy, high), -high))
+                robust = robust & corner_wall & (corner_clearance >= 0)
+
+        # Tiers 4 apart, and within a tier at most 1.75 of preference: the nearest candidate where it is safe, else
+        # the one that keeps farthest from the others' reach (the way out of a corner, if the next step has one).
+        distance = ((candidates - proposed.unsqueeze(2)) / high).square().sum(-1) / 8.0  # within [0, 1]
+        within = torch.where(safe, -distance, 1.5 * clearance.clamp(-1.0, 0.0) - 0.25 * distance)
+        score = 16.0 * robust + 8.0 * safe + 4.0 * wall_safe + within
+        score[..., 1] += 1e-6  # among equals (nothing safe), brake
+        chosen = score.argmax(-1)
+        guard = shielded.unsqueeze(0) & self._active
+        intervened = guard & (chosen != 0)
+        replacement = candidates.gather(2, chosen[..., None, None].expand(batch, n, 1, 2)).squeeze(2)
+        return torch.where(intervened.unsqueeze(-1), replacement, action), intervened
+
+    def _look_ahead(self, candidates: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """For candidate action k (B, N, K, 2), within the bounds, of every agent: bool (B, N, K), it is wall-safe,
+        and float (B, N, K), the clearance in metres its path keeps from the nearest other agent's reach (agent-safe
+        when ≥ 0; ``shield_action`` says what both mean)."""
+        p = self.params
+        x0, y0, v0 = self._x.unsqueeze(-1), self._y.unsqueeze(-1), self._speed.unsqueeze(-1)  # (B, N, 1)
+        heading = self._heading.unsqueeze(-1) + candidates[..., 1]
+        speed = (v0 + candidates[..., 0] * p.dt_s).clamp(-p.max_speed_mps, p.max_speed_mps)
+        cos, sin = torch.cos(heading), torch.sin(heading)
+        x1, y1 = x0 + speed * cos * p.dt_s, y0 + speed * sin * p.dt_s
+        # Full braking lowers |v| by a·dt a step: it covers dt·Σ_k max(|v| - k·a·dt, 0) before it stops.
+        step_drop = p.max_accel_mps2 * p.dt_s
+        k = torch.floor(speed.abs() / step_drop)
+        stopping = p.dt_s * (k * speed.abs() - step_drop * k * (k + 1) / 2)
+        xs, ys = x1 + torch.sign(speed) * stopping * cos, y1 + torch.sign(speed) * stopping * sin
+        (x_low, x_high), (y_low, y_high) = self._x_range, self._y_range
+        wall_safe = (xs >= x_low) & (xs <= x_high) & (ys >= y_low) & (ys <= y_high)
+        wall_safe &= (x1 >= x_low) & (x1 <= x_high) & (y1 >= y_low) & (y1 <= y_high)
+        if self._boxes.numel():
+            for px, py in ((x1, y1), (xs, ys), ((x1 + xs) / 2, (y1 + ys) / 2)):
+                wall_safe &= ~self._touches_box(px, py)
+
+        # (B, i, K, j): the closest approach of agent i's path in the step (x0, y0) -> (x1, y1) to agent j's centre.
+        dx, dy = (x1 - x0).unsqueeze(-1), (y1 - y0).unsqueeze(-1)
+        to_x = self._x[:, None, None, :] - x0.unsqueeze(-1)
+        to_y = self._y[:, None, None, :] - y0.unsqueeze(-1)
+        along = ((to_x * dx + to_y * dy) / (dx.square() + dy.square()).clamp_min(1e-12)).clamp(0.0, 1.0)
+        gap_sq = (to_x - along * dx).square() + (to_y - along * dy).square()
+        reach = (self._speed.abs() + step_drop) * p.dt_s * self._active  # (B, N): how far j can get in the step
+        keep = 2 * p.agent_radius_m + reach[:, None, None, :]
+        other = self._not_self.squeeze(-1)[None, :, None, :] & self._present[:, None, None, :]
+        clearance = torch.where(other, gap_sq.sqrt() - keep, torch.full_like(gap_sq, math.inf)).amin(-1)
+        return wall_safe, clearance
+
     def _near_miss(self) -> torch.Tensor:
         x, y = self._x.t(), self._y.t()  # (N, B): agent-major
         gap_sq = (x.unsqueeze(1) - x.unsqueeze(0)).square() + (y.unsqueeze(1) - y.unsqueeze(0)).square()
