@@ -1,5 +1,6 @@
 """Learners: one file each, each with its dataclass config. Single-agent (an ego view or the centralized view):
-dqn, trpo, ppo. Multi-agent (every agent learns, ``opponent=self``): ippo, mappo, iql, vdn, qmix."""
+dqn, trpo, ppo, and ppo_lagrangian (safe RL: PPO under a limit on the expected episode cost). Multi-agent (every
+agent learns, ``opponent=self``): ippo, mappo, iql, vdn, qmix."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ _REGISTRY = {
     "dqn": "sidewalk.algos.dqn:DQN",
     "trpo": "sidewalk.algos.trpo:TRPO",
     "ppo": "sidewalk.algos.ppo:PPO",
+    "ppo_lagrangian": "sidewalk.algos.ppo_lagrangian:PPOLagrangian",
     "ippo": "sidewalk.algos.ippo:IPPO",
     "mappo": "sidewalk.algos.mappo:MAPPO",
     "iql": "sidewalk.algos.iql:IQL",
