@@ -131,6 +131,7 @@ def test_ego_info_reports_the_ego():
     env.reset(seed=0)
     *_, info = env.step(3)  # agent 1 starts at the right end: RIGHT leaves the grid
     assert info["agents"]["collided_wall"][1] and not info["is_success"]
+    assert info["cost"] == 1.0 and info["agents"]["cost"][1] == 1.0
     assert info["state"].shape == (2, 2) and info["goal"].shape == (2, 2)
 
 
@@ -173,7 +174,10 @@ def test_make_vec_autoresets_on_the_next_step():
         # Worlds that ended on the previous step restart: first observation, no reward, not done, fresh flags.
         assert np.array_equal(obs[ended], first[ended])
         assert (reward[ended] == 0).all() and not (terminated[ended] | truncated[ended]).any()
-        assert not info["agents"]["collided_wall"][ended].any()
+        assert not info["agents"]["collided_wall"][ended].any() and (info["cost"][ended] == 0).all()
+        # The worlds that go on keep their step's reward and cost in info (a reset output zeroes every world's).
+        np.testing.assert_array_equal(info["agents"]["reward"][:, 0], reward)
+        np.testing.assert_array_equal(info["agents"]["cost"][:, 0], info["cost"])
         restarts += ended.sum()
         ended = terminated | truncated
     assert restarts > 0
@@ -228,9 +232,11 @@ def test_parallel_env_removes_finished_agents_and_exposes_the_state():
     env = parallel_env(domain="discrete", render_mode="rgb_array")
     observations, infos = env.reset(seed=0)
     assert set(observations) == {"agent_0", "agent_1"} and observations["agent_0"].shape == (1, 14, 30)
+    assert infos["agent_0"]["cost"] == infos["agent_1"]["cost"] == 0.0
     assert env.state().shape == env.state_space.shape == (4,)
     _, rewards, terminations, _, infos = env.step({"agent_0": 2, "agent_1": 0})  # agent_0 walks off the grid
     assert terminations == {"agent_0": True, "agent_1": False} and infos["agent_0"]["collided_wall"]
+    assert infos["agent_0"]["cost"] == 1.0 and infos["agent_1"]["cost"] == 0.0
     assert env.agents == ["agent_1"] and rewards["agent_0"] == pytest.approx(-0.51)
     with pytest.raises(ValueError, match=r"live agents \['agent_1'\]"):
         env.step({})

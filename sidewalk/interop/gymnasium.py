@@ -6,7 +6,8 @@ Importing this module (``import sidewalk`` does) registers both ids::
     envs = gymnasium.make_vec("sidewalk/Continuous-v0", num_envs=4096, opponent="prm")
 
 ``opponent`` is a registered opponent name (``"random"``; ``"dijkstra"`` in the grid, ``"prm"`` in the continuous
-world) for the ego view, or ``"centralized"`` for the joint-action view; every other keyword (``noise``,
+world) for the ego view, or ``"centralized"`` for the joint-action view; ``shield=True`` puts the safety shield in
+front of the learner's actions (README "Safe RL"); every other keyword (``noise``,
 ``rewards``, ``observation``, ``max_steps``, ...) goes to the core env and is checked there. ``make_vec`` builds one
 batched core env of ``num_envs`` worlds (``vector_entry_point``), not ``num_envs`` copies.
 
@@ -16,12 +17,18 @@ Actions: ``Discrete(4)`` (UP, DOWN, LEFT, RIGHT) or ``Discrete(16)`` for the cen
 ``a0 * 4 + a1``); a float32 Box of (acceleration m/s², turn rad) per controlled agent in the continuous world, in
 physical units (libraries that want [-1, 1], like Stable-Baselines3, take ``gymnasium.wrappers.RescaleAction``).
 
-``info`` holds ``is_success`` (the ego reached its goal; centralized: every agent did), ``agents`` (every agent's
-outcome flags ``reached_goal``, ``collided_agent``, ``collided_wall``, ``timed_out`` and its own ``reward``, each
-indexed by agent) and the true ``state`` and ``goal`` of every agent. The vector env batches each entry along a
-leading ``num_envs`` axis and adds gymnasium's ``_key`` masks; it autoresets in gymnasium's default next-step mode
+``info`` holds ``is_success`` (the ego reached its goal; centralized: every agent did), ``cost`` (the learner's
+safety cost of the step, a float: the ego's, or the sum over the agents for the centralized view; 1 per agent that
+hit a wall or another agent in the step, with the core's ``cost="near_miss"`` also per agent that ended it within
+``near_miss_margin`` of another; 0 on reset), ``agents`` (every agent's outcome flags ``reached_goal``,
+``collided_agent``, ``collided_wall``, ``timed_out`` (sticky for the episode), its own ``reward`` and ``cost`` of the
+step, each indexed by agent) and the true ``state`` and ``goal`` of every agent. Constrained-RL code written for
+Safety-Gymnasium's ``(obs, reward, cost, terminated, truncated, info)`` takes ``sidewalk.interop.safety_gymnasium``.
+
+The vector env batches each entry along a leading ``num_envs`` axis and adds gymnasium's ``_key`` masks (so
+``info["cost"]`` is a (num_envs,) float array); it autoresets in gymnasium's default next-step mode
 (``metadata["autoreset_mode"]``): the step after an episode ends ignores that world's action and returns its first
-observation with reward 0 and ``terminated = truncated = False``.
+observation with reward 0, cost 0 and ``terminated = truncated = False``.
 """
 
 from __future__ import annotations
@@ -65,10 +72,12 @@ def build_view(
     end_on_ego_done: bool | None = None,
     opponent_kwargs: Mapping[str, Any] | None = None,
     device: str | torch.device = "cpu",
+    shield: bool = False,
     **env_kwargs: Any,
 ) -> EgoView | CentralizedView:
     """The TorchRL view behind the gymnasium face: an ``EgoView`` against ``opponent``, or a ``CentralizedView``
-    for ``opponent="centralized"`` (which takes no ``ego``, ``end_on_ego_done`` or ``opponent_kwargs``)."""
+    for ``opponent="centralized"`` (which takes no ``ego``, ``end_on_ego_done`` or ``opponent_kwargs``).
+    ``shield=True`` puts the safety shield in front of the learner's actions (``sidewalk.views``)."""
     check_choice("domain", domain, DOMAINS)
     check_choice("opponent", opponent, [*OPPONENTS, CENTRALIZED])
     core = DOMAINS[domain](num_envs=num_envs, device=device, **env_kwargs)
@@ -77,13 +86,14 @@ def build_view(
         extra = [name for name, value in given.items() if value is not None]
         if extra:
             raise ValueError(f"opponent='centralized' has no ego agent; drop {', '.join(extra)}")
-        return CentralizedView(core)
+        return CentralizedView(core, shield=shield)
     return EgoView(
         core,
         opponent=opponent,
         ego=0 if ego is None else ego,
         end_on_ego_done=bool(end_on_ego_done),
         opponent_kwargs=opponent_kwargs,
+        shield=shield,
     )
 
 
@@ -153,12 +163,14 @@ def _info(view: EgoView | CentralizedView, out: TensorDictBase) -> dict[str, Any
     flags = world.get("info")
     agents = {key: _numpy(flags.get(key).squeeze(-1)) for key in INFO_KEYS}
     agents["reward"] = _numpy(world.get("reward").squeeze(-1))
+    agents["cost"] = _numpy(world.get("cost").squeeze(-1))
     if isinstance(view, EgoView):
         success = agents["reached_goal"][:, view.ego]
     else:
         success = agents["reached_goal"].all(-1)
     return {
         "is_success": success,
+        "cost": _numpy(out.get("cost").squeeze(-1)),
         "agents": agents,
         "state": _numpy(world.get("state")),
         "goal": _numpy(world.get("goal")),
@@ -225,6 +237,7 @@ class SidewalkGymEnv(gymnasium.Env):
         info = _info(self.view, out)
         return {
             "is_success": bool(info["is_success"][0]),
+            "cost": float(info["cost"][0]),
             "agents": {key: value[0] for key, value in info["agents"].items()},
             "state": info["state"][0],
             "goal": info["goal"][0],
@@ -317,8 +330,14 @@ class SidewalkVectorEnv(VectorEnv):
         if rows.any():
             # Next-step autoreset: worlds that ended last step restart now. They were stepped with the others (one
             # batched step is cheaper than a masked one); the reset overwrites that step, whose reward is dropped.
+            stepped = out
             out = self.view._reset(TensorDict({"_reset": rows.unsqueeze(-1)}, batch_size=self._batch))
             reward = reward.masked_fill(rows, 0.0)
+            # A reset output zeroes every world's reward and cost; the worlds that did not restart keep their step's.
+            for key in ("cost", (WORLD, "reward"), (WORLD, "cost")):
+                step_value = stepped.get(key)
+                restarted = rows.reshape(-1, *(1,) * (step_value.dim() - 1))
+                out.set(key, step_value.masked_fill(restarted, 0.0))
         terminated = out.get("terminated").squeeze(-1)
         truncated = out.get("truncated").squeeze(-1)
         self._autoreset = terminated | truncated

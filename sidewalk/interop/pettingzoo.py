@@ -7,7 +7,10 @@ truncated (timeout), so the cooperative reward a finished agent would still coll
 (``alpha * c_goal``) is not delivered here; the TorchRL multi-agent env keeps every agent until the world ends.
 
 ``infos[agent]`` holds that agent's outcome flags (``reached_goal``, ``collided_agent``, ``collided_wall``,
-``timed_out``). ``state()`` is the true state of every agent, flattened (float32), for centralized critics.
+``timed_out``; sticky for the episode) and its safety ``cost`` of the step (a float: 1 on the step it hits a wall or
+another agent, with the core's ``cost="near_miss"`` also on steps it ends within ``near_miss_margin`` of another
+agent; 0 otherwise and on reset). ``state()`` is the true state of every agent, flattened (float32), for
+centralized critics.
 PettingZoo is an optional dependency: ``pip install 'sidewalk[pettingzoo]'``.
 """
 
@@ -126,9 +129,18 @@ class SidewalkParallelEnv(ParallelEnv):
         observation = agents.get("observation")[0].detach().cpu().numpy()
         return {agent: observation[self._index[agent]].copy() for agent in names}
 
-    def _per_agent_infos(self, agents: TensorDictBase, names: list[str]) -> dict[str, dict[str, bool]]:
+    def _per_agent_infos(
+        self, agents: TensorDictBase, names: list[str]
+    ) -> dict[str, dict[str, bool | float]]:
         flags = {key: agents.get(("info", key))[0, :, 0].tolist() for key in INFO_KEYS}
-        return {agent: {key: bool(flags[key][self._index[agent]]) for key in INFO_KEYS} for agent in names}
+        cost = agents.get("cost")[0, :, 0].tolist()
+        return {
+            agent: {
+                **{key: bool(flags[key][self._index[agent]]) for key in INFO_KEYS},
+                "cost": float(cost[self._index[agent]]),
+            }
+            for agent in names
+        }
 
     def state(self) -> np.ndarray:
         """The true state of every agent, flattened in agent order, float32 (``state_space``)."""
