@@ -1,15 +1,16 @@
-"""Report on run folders and sweeps: learning curves, final values with 95 % CIs, the paper's figures, report.md.
+"""Report on run folders and sweeps: learning curves, training cost, final values with 95 % CIs, paper figures.
 
     python runners/report.py results/sweeps/2026-01-01_12-00-00_fig5_discrete
     python runners/report.py results/sweeps/a results/sweeps/b --out results/report
     python runners/report.py results/sweeps --x iterations --trajectories 0     # no replay of checkpoints
     python runners/report.py results/sweeps/reference --out results/reference --preamble notes.md
 
-Writes report.md (tables, figures embedded; the cross-play matrix of any folder with a crossplay.csv under the
-paths, see runners/crossplay.py), report.csv (every number in report.md), curves.csv (every plotted point) and
-figures/ into --out (default: report/ inside the single path given, or inside the paths' common
-folder). Unusable run folders are listed in report.md and skipped. Progress goes to stderr. Exit status: 0, or 1
-when no run could be used, 2 for bad arguments. See the sidewalk.report package.
+Writes report.md (tables, with Safety Gym's final return, final cost and training cost rate where runs record
+costs; figures embedded, the learner's cumulative training cost among them; the cross-play matrix of any folder
+with a crossplay.csv under the paths, see runners/crossplay.py), report.csv (every number in report.md),
+curves.csv (every plotted point) and figures/ into --out (default: report/ inside the single path given, or
+inside the paths' common folder). Unusable run folders are listed in report.md and skipped. Progress goes to
+stderr. Exit status: 0, or 1 when no run could be used, 2 for bad arguments. See the sidewalk.report package.
 """
 
 from __future__ import annotations

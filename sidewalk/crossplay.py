@@ -161,6 +161,7 @@ def load_player(path: str | Path) -> Player:
     """The learned policy in the run folder ``path`` (see ``find_runs``), its seed and condition."""
     from omegaconf import OmegaConf
 
+    from sidewalk.report.conditions import with_later_keys
     from sidewalk.report.runs import flatten
     from sidewalk.run_folder import CONFIG
 
@@ -173,10 +174,10 @@ def load_player(path: str | Path) -> Player:
     if (path / CONFIG).exists():
         config = OmegaConf.to_container(OmegaConf.load(path / CONFIG), resolve=True)
         seed = int(config["seed"]) if "seed" in config else None
-        flat = {
+        flat = with_later_keys({
             key: value for key, value in flatten(config).items()
             if not any(key == k or key.startswith(f"{k}.") for k in BOOKKEEPING_KEYS)
-        }
+        })
     if flat is None:  # policy.pt alone: its own description of the learner and its world
         flat = {"algo": dataclasses.asdict(partner.algo_config), "env": dataclasses.asdict(partner.env_params),
                 "opponent": partner.opponent, "ego": partner.ego}

@@ -503,7 +503,7 @@ def test_report_on_a_real_two_seed_sweep_in_under_a_minute(tiny_sweep, tmp_path)
     assert seconds < 60
     assert "report: " in result.stderr and result.stdout == ""  # progress on stderr only
     figures = {p.name for p in (tmp_path / "out" / "figures").iterdir()}
-    assert figures == {"curves_tiny.png", "fig10_trajectories_discrete.png"}
+    assert figures == {"curves_tiny.png", "cost_tiny.png", "fig10_trajectories_discrete.png"}
     report = (tmp_path / "out" / "report.md").read_text()
     assert "| C1 | discrete: DQN vs dijkstra | tiny | 0, 1 | 4 | 64 |" in report
     # The checkpoint replayed on the evaluation's worlds gives the evaluation's numbers back.

@@ -2,19 +2,24 @@
 
 ``write_report(paths, out)`` finds every run folder under ``paths`` (a folder holding ``config.yaml`` and
 ``metrics.csv``, as ``runners/main.py`` writes it, alone or inside a sweep), groups the runs into *conditions*
-(identical configs but for the seed and bookkeeping keys such as the logger), and writes into ``out``:
+(identical configs but for the seed and bookkeeping keys such as the logger; a shielded learner is a condition
+of its own), and writes into ``out``:
 
 - ``figures/curves_<family>.png``: success and collision rate of each agent over training, the mean over seeds
   with the standard error shaded (the paper's way); one figure per *family*, i.e. per sweep folder (the folder
   holding Hydra's ``multirun.yaml``), or per parent folder for runs outside a sweep;
+- ``figures/cost_<family>.png``: the cost the learner's agents paid during training (collisions), cumulative
+  over frames, one line per condition, the mean over seeds with the standard error shaded; drawn where runs log
+  ``train/cumulative_cost`` (runs written before the safety accounting have no such figure);
 - the paper's figures where runs that differ in the figure's variable are present (see ``PAPER_FIGURES``):
   Fig. 5 success and Fig. 7 collisions by opponent, Fig. 6 success under noise, Fig. 8 explicit vs implicit
   reward, and Fig. 10 representative trajectories replayed from the runs' checkpoints; a figure whose runs are
   missing is skipped with a note;
 - ``report.md``: the tables (final values of each condition: mean ± standard error over seeds, interquartile mean
   with its 95 % stratified-bootstrap interval, see ``sidewalk.stats``) with the figures embedded by relative path,
-  and the run folders that were skipped and why (no ``metrics.csv``, a truncated CSV, no ``summary.json``, a
-  failed job...);
+  and, beside each family's final values, Safety Gym's triple (final return, final cost, training cost rate) and
+  the shield's rate where runs log it; and the run folders that were skipped and why (no ``metrics.csv``, a
+  truncated CSV, no ``summary.json``, a failed job...);
 - ``report.csv``: every number in ``report.md``, one per row; ``curves.csv``: every plotted point.
 
 Learning curves read the ``eval/<agent>/<metric>`` columns of ``metrics.csv`` (the evaluations during training);
@@ -50,7 +55,15 @@ from sidewalk.report.conditions import (
     varying_keys,
 )
 from sidewalk.report.document import ReportResult, write_report
-from sidewalk.report.figures import COLOURS, CURVE_METRICS, OUTCOMES, draw_curves, draw_trajectories, slug
+from sidewalk.report.figures import (
+    COLOURS,
+    CURVE_METRICS,
+    OUTCOMES,
+    draw_cost_curves,
+    draw_curves,
+    draw_trajectories,
+    slug,
+)
 from sidewalk.report.runs import (
     CHECKPOINT,
     CONFIG,
@@ -69,14 +82,18 @@ from sidewalk.report.runs import (
     read_metrics,
 )
 from sidewalk.report.tables import (
+    SAFETY_COLUMNS,
     X_AXES,
     Final,
     NumberLog,
     Settings,
+    column_curve,
     curve,
     final_table,
     finals,
     fmt,
+    safety_finals,
+    safety_table,
     summary_values,
 )
 
@@ -93,6 +110,7 @@ __all__ = [
     "OUTCOMES",
     "PAPER_FIGURES",
     "RUN_MARKERS",
+    "SAFETY_COLUMNS",
     "SUMMARY",
     "SWEEP_MARKER",
     "X_AXES",
@@ -106,8 +124,10 @@ __all__ = [
     "RunFolderError",
     "Settings",
     "Skipped",
+    "column_curve",
     "curve",
     "describe",
+    "draw_cost_curves",
     "draw_curves",
     "draw_trajectories",
     "family_of",
@@ -125,6 +145,8 @@ __all__ = [
     "read_metrics",
     "replay",
     "representative_run",
+    "safety_finals",
+    "safety_table",
     "slug",
     "summary_values",
     "varying_keys",

@@ -16,6 +16,21 @@ from sidewalk.report.runs import SUMMARY, Run
 BOOKKEEPING_KEYS = ("seed", "resume", "device", "torch_threads", "checkpoint_every", "logger")
 OPPONENT_ORDER = ("random", "dijkstra", "prm", "centralized")
 DOMAIN_ORDER = ("discrete", "continuous")
+# Keys that came into the config after runs were made, with the value that a run written without them had: an older
+# run without ``shield`` trained unshielded, so it is the same condition as a ``shield=false`` run, and a shielded run
+# is always a condition of its own.
+LATER_KEYS: dict[str, Any] = {"shield": False}
+# Env keys that came later, per domain (env.domain): the safety cost of runs written before it was counted.
+LATER_ENV_KEYS: dict[str, dict[str, Any]] = {
+    "discrete": {"env.cost": "collision", "env.near_miss_margin": 1.0},
+    "continuous": {"env.cost": "collision", "env.near_miss_margin": 0.3},
+}
+
+
+def with_later_keys(flat: dict[str, Any]) -> dict[str, Any]:
+    """A run's flat config with every key of ``LATER_KEYS``/``LATER_ENV_KEYS`` it lacks at the value it had then, so a
+    run from before a key existed groups with today's runs of the same setting (the report's and cross-play's)."""
+    return {**LATER_KEYS, **LATER_ENV_KEYS.get(str(flat.get("env.domain")), {}), **flat}
 
 
 def _is_bookkeeping(key: str) -> bool:
@@ -79,17 +94,19 @@ def _sort_key(condition: Condition) -> tuple:
         rank(condition.opponent, OPPONENT_ORDER),
         float(flat.get("noise", 0.0) or 0.0),
         -float(flat.get("reward.alpha", 0.0) or 0.0),
+        bool(flat.get("shield", False)),
         condition.key,
     )
 
 
 def group_conditions(runs: Sequence[Run]) -> list[Condition]:
-    """Group runs by their config without seed and bookkeeping keys; one run per seed (a repeated seed, e.g. the
-    same condition run by two presets, keeps the newest run and notes the others). Conditions are sorted (domain,
-    algorithm, opponent, noise, reward) and numbered C1, C2, ..."""
+    """Group runs by their config without seed and bookkeeping keys (a key of ``LATER_KEYS`` that a run's config
+    lacks taking its value there); one run per seed (a repeated seed, e.g. the same condition run by two presets,
+    keeps the newest run and notes the others). Conditions are sorted (domain, algorithm, opponent, noise, reward,
+    shield) and numbered C1, C2, ..."""
     grouped: dict[str, Condition] = {}
     for run in runs:
-        flat = {k: v for k, v in run.flat.items() if not _is_bookkeeping(k)}
+        flat = with_later_keys({k: v for k, v in run.flat.items() if not _is_bookkeeping(k)})
         key = json.dumps(sorted(flat.items()), default=str)
         condition = grouped.setdefault(key, Condition(key, flat, []))
         condition.runs.append(run)
@@ -121,6 +138,8 @@ def _value(key: str, value: Any, domain: str) -> str:
         return f"{value} reward"
     if key == "reward.shaped_agents":
         return "all shaped" if value is None else f"shaped {list(value)}"
+    if key == "shield":
+        return "shielded" if value else "unshielded"
     short = key.split(".", 1)[1] if key.startswith(("env.", "algo.")) else key
     return f"{short}={list(value) if isinstance(value, tuple) else value}"
 
@@ -135,9 +154,9 @@ def varying_keys(conditions: Sequence[Condition], ignore: Iterable[str] = ()) ->
 
 
 def describe(condition: Condition, keys: Sequence[str], limit: int | None = 4) -> str:
-    """``condition`` told by its values of ``keys`` (opponent first, then noise, reward, the rest), at most
+    """``condition`` told by its values of ``keys`` (opponent first, then shield, noise, reward, the rest), at most
     ``limit`` of them and then how many more; keys the condition does not have are left out."""
-    order = ["opponent.name", "reward.shaped_agents", "noise", "reward.name", "reward.alpha"]
+    order = ["opponent.name", "shield", "reward.shaped_agents", "noise", "reward.name", "reward.alpha"]
     ranked = sorted(
         (k for k in keys if k in condition.flat),
         key=lambda k: (order.index(k) if k in order else len(order), k),

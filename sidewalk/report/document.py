@@ -35,7 +35,7 @@ from sidewalk.report.runs import (
     load_run,
     shown_path,
 )
-from sidewalk.report.tables import NumberLog, Settings
+from sidewalk.report.tables import NumberLog, Settings, records_safety
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +132,7 @@ def write_report(
     md += trajectory_section(conditions, settings, figures_dir, figures, notes)
     md += family_sections(conditions, settings, figures_dir, figures, numbers, curves_rows)
     md += crossplay_sections(crossplay, figures_dir, out, figures, numbers)
-    md += _statistics_section(settings)
+    md += _statistics_section(settings, safety=any(records_safety(c) for c in conditions))
 
     report_md = out / "report.md"
     report_md.write_text("\n".join(md) + "\n")
@@ -200,9 +200,9 @@ def _skipped_section(skipped: Sequence[Skipped]) -> list[str]:
     return md + [""]
 
 
-def _statistics_section(settings: Settings) -> list[str]:
+def _statistics_section(settings: Settings, safety: bool) -> list[str]:
     level = f"{settings.confidence:.0%}"
-    return [
+    md = [
         "## How the numbers are computed",
         "",
         (
@@ -221,5 +221,20 @@ def _statistics_section(settings: Settings) -> list[str]:
             "- With 1 seed there is no SE and no CI (shown as – / 'no CI'); with 2 seeds the CI is marked coarse "
             "(a bootstrap of two values can take only three values). The paper used 3 seeds."
         ),
-        "",
     ]
+    if safety:  # a report of runs written before the safety accounting has none of it to explain
+        md.append(
+            "- Safety: a step costs 1 where an agent hits a wall or another agent (`env.cost=near_miss` adds "
+            "steps ending too close to another agent). The cost figures draw `train/cumulative_cost` of "
+            "`metrics.csv`, the cost the learner's agents (the ego against a scripted opponent, every agent "
+            "otherwise) paid since training began, mean over seeds, ± one SE shaded. The safety tables give the "
+            'three numbers of Safety Gym (Ray, Achiam & Amodei 2019, "Benchmarking Safe Exploration in Deep '
+            "Reinforcement Learning\"): final return and final cost, the learner's mean episode return and episode "
+            "cost in the last evaluation (`ego/return`, `ego/cost` where the learner plays the ego, else `return`, "
+            "`cost`: means over agents), which say what the learned policy achieves and how safely; and the "
+            "training cost rate (`cost_rate`: all the cost paid in training over the frames collected), which says "
+            "how safely it learned. Shield rate: the mean over training of `train/shield_rate`, the share of the "
+            "learner's steps where the safety shield replaced its action. — marks a number a run did not record "
+            "(written before the safety accounting, or without the shield)."
+        )
+    return md + [""]

@@ -1,6 +1,6 @@
 """Figures: learning curves (mean over seeds, SE shaded), the paper's Fig. 5 to 8 (one panel per group of
-conditions), Fig. 10's trajectories and each family's curves; each section draws its figure into ``figures/``,
-logs its numbers and returns its ``report.md`` lines."""
+conditions), Fig. 10's trajectories and each family's curves and cumulative training cost; each section draws its
+figure into ``figures/``, logs its numbers and returns its ``report.md`` lines."""
 
 from __future__ import annotations
 
@@ -26,13 +26,33 @@ from sidewalk.report.conditions import (
     varying_keys,
 )
 from sidewalk.report.runs import POLICY_FILES, SUMMARY, shown_path
-from sidewalk.report.tables import NumberLog, Settings, curve, final_of, final_table, finals
+from sidewalk.report.tables import (
+    CUMULATIVE_COST,
+    NOT_RECORDED,
+    NumberLog,
+    Settings,
+    column_curve,
+    curve,
+    final_of,
+    final_table,
+    finals,
+    learner_agent,
+    recorded,
+    records_safety,
+    safety_finals,
+    safety_table,
+)
 
 log = logging.getLogger(__name__)
 
 
 CURVE_METRICS = {"success_rate": "success rate", "collision_rate": "collision rate"}
 SCENARIO_METRICS = ("makespan", "deadlock_rate")  # reported for runs in a scenario other than the sidewalk
+SAFETY_NOTE = (
+    "Safety, as Safety Gym reports it (Ray, Achiam & Amodei 2019): the learner's final return and final episode "
+    "cost (the last evaluation) and its cost rate over all of training (the cost it paid per frame collected); "
+    f"mean ± SE over seeds, each one's IQM and CI in the table above; {NOT_RECORDED}: not recorded by these runs."
+)
 COLOURS = ("#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#7f7f7f")
 
 
@@ -61,47 +81,97 @@ def draw_curves(
             if data.empty:
                 continue
             drawn = True
-            shade = colour if rank == 0 else _lighter(colour, 0.45)
-            x, mean, se = data["x"].to_numpy(float), data["mean"].to_numpy(float), data["se"].to_numpy(float)
-            ax.plot(
-                x,
-                mean,
-                color=shade,
-                linestyle="-" if rank == 0 else "--",
-                linewidth=1.8 if rank == 0 else 1.4,
-                label=f"{label}: {agent_name}",
+            _plot_mean_se(
+                ax,
+                data,
+                colour if rank == 0 else _lighter(colour, 0.45),
+                f"{label}: {agent_name}",
+                dashed=rank != 0,
             )
-            band = np.isfinite(se)
-            if band.any():
-                ax.fill_between(
-                    x,
-                    mean - np.where(band, se, 0),
-                    mean + np.where(band, se, 0),
-                    where=band,
-                    color=shade,
-                    alpha=0.2,
-                    linewidth=0,
-                )
-            for row in data.itertuples(index=False):
-                curves_out.append(
-                    {
-                        "figure": figure_name,
-                        "condition_id": condition.ident,
-                        "condition": condition.label,
-                        "agent": agent,
-                        "metric": metric,
-                        "x_axis": settings.x,
-                        "x": row.x,
-                        "mean": row.mean,
-                        "se": row.se,
-                        "seeds": int(row.n),
-                    }
-                )
+            _record(curves_out, data, figure_name, condition, agent, metric, settings)
     ax.set_xlabel(settings.x)
     ax.set_ylabel(CURVE_METRICS.get(metric, metric))
     ax.set_ylim(-0.03, 1.03)
     ax.grid(alpha=0.3)
     return drawn
+
+
+def draw_cost_curves(
+    ax,
+    conditions: Sequence[Condition],
+    labels: Sequence[str],
+    settings: Settings,
+    curves_out: list[dict[str, Any]],
+    figure_name: str,
+) -> bool:
+    """Mean ± SE over seeds of the cost the learner's agents paid during training, summed since its start
+    (``train/cumulative_cost``), one line per condition in the hue ``draw_curves`` gives it; conditions whose runs
+    predate the column are left out. Appends the plotted points to ``curves_out``; returns whether anything was
+    drawn."""
+    drawn = False
+    for index, (condition, label) in enumerate(zip(conditions, labels)):
+        data = column_curve(condition, CUMULATIVE_COST, settings.x)
+        if data.empty:
+            continue
+        drawn = True
+        agent, agent_name = learner_agent(condition)
+        _plot_mean_se(ax, data, COLOURS[index % len(COLOURS)], f"{label}: {agent_name}")
+        _record(curves_out, data, figure_name, condition, agent, "cumulative_cost", settings)
+    ax.set_xlabel(settings.x)
+    ax.set_ylabel("learner's cumulative cost (collisions)")
+    # A little below zero, so that a learner that never collided (a shielded one) draws a visible line.
+    ax.set_ylim(bottom=-0.03 * max(ax.get_ylim()[1], 1.0))
+    ax.grid(alpha=0.3)
+    return drawn
+
+
+def _plot_mean_se(ax, data, colour, label: str, dashed: bool = False) -> None:
+    x, mean, se = data["x"].to_numpy(float), data["mean"].to_numpy(float), data["se"].to_numpy(float)
+    ax.plot(
+        x,
+        mean,
+        color=colour,
+        linestyle="--" if dashed else "-",
+        linewidth=1.4 if dashed else 1.8,
+        label=label,
+    )
+    band = np.isfinite(se)
+    if band.any():
+        ax.fill_between(
+            x,
+            mean - np.where(band, se, 0),
+            mean + np.where(band, se, 0),
+            where=band,
+            color=colour,
+            alpha=0.2,
+            linewidth=0,
+        )
+
+
+def _record(
+    curves_out: list[dict[str, Any]],
+    data,
+    figure_name: str,
+    condition: Condition,
+    agent: str,
+    metric: str,
+    settings: Settings,
+) -> None:
+    for row in data.itertuples(index=False):
+        curves_out.append(
+            {
+                "figure": figure_name,
+                "condition_id": condition.ident,
+                "condition": condition.label,
+                "agent": agent,
+                "metric": metric,
+                "x_axis": settings.x,
+                "x": row.x,
+                "mean": row.mean,
+                "se": row.se,
+                "seeds": int(row.n),
+            }
+        )
 
 
 def _save(figure: Figure, path: Path) -> None:
@@ -370,9 +440,9 @@ def family_sections(
     numbers: NumberLog,
     curves_rows: list[dict[str, Any]],
 ) -> list[str]:
-    """``report.md`` lines of each family (sweep folder): its conditions' learning curves, drawn into
-    ``figures_dir`` and appended to ``figures``, and their final values; numbers go to ``numbers`` and plotted
-    points to ``curves_rows``."""
+    """``report.md`` lines of each family (sweep folder): its conditions' learning curves and cumulative training
+    cost, drawn into ``figures_dir`` and appended to ``figures``, their final values and, for runs with the safety
+    accounting, Safety Gym's triple; numbers go to ``numbers`` and plotted points to ``curves_rows``."""
     md = [
         "## Learning curves and final values by family",
         "",
@@ -410,6 +480,10 @@ def family_sections(
             md += [f"![learning curves of {family}](figures/{path.name})", ""]
         else:
             md += ["_No learning curve: these runs did not evaluate during training (eval_every=0)._", ""]
+        md += _cost_figure(family, members, labels, settings, figures_dir, figures, curves_rows)
+        # Where some runs record costs, every condition gets a safety row: one without says so rather than vanishing.
+        family_safety = any(records_safety(condition) for condition in members)
+        safety_rows = []
         final_rows = []
         for condition in members:
             agents = condition.agents()
@@ -426,5 +500,44 @@ def family_sections(
             for final in team:
                 final_rows.append((condition, "team", final))
                 numbers.add_final(f"family:{family}", condition, final)
+            if family_safety:
+                by_metric = safety_finals(condition, settings)
+                learner_name = learner_agent(condition)[1]
+                safety_rows.append((condition, learner_name, by_metric))
+                for metric, final in by_metric.items():
+                    if recorded(final):
+                        numbers.add_final(f"safety:{family}", condition, final)
+                        if metric != "success_rate":  # the learner's success has its rows above
+                            final_rows.append((condition, learner_name, final))
         md += ["Final values (`summary.json`):", ""] + final_table(final_rows, settings.confidence) + [""]
+        if safety_rows:
+            md += [SAFETY_NOTE, ""] + safety_table(safety_rows) + [""]
     return md
+
+
+def _cost_figure(
+    family: str,
+    members: Sequence[Condition],
+    labels: Sequence[str],
+    settings: Settings,
+    figures_dir: Path,
+    figures: list[Path],
+    curves_rows: list[dict[str, Any]],
+) -> list[str]:
+    """``report.md`` lines of ``family``'s cumulative training cost figure, drawn into ``figures_dir``; none where
+    no run logs ``train/cumulative_cost`` (runs written before the safety accounting)."""
+    name = f"cost_{slug(family)}"
+    figure = Figure(figsize=(7.5, 4.8))
+    ax = figure.subplots()
+    if not draw_cost_curves(ax, members, labels, settings, curves_rows, name):
+        return []
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, frameon=False)
+    ax.set_title(
+        f"{family}: the learner's collisions (cost) during training\n"
+        "cumulative since the start, mean over seeds, SE shaded"
+    )
+    path = figures_dir / f"{name}.png"
+    _save(figure, path)
+    figures.append(path)
+    log.info("drew %s", path.name)
+    return [f"![cumulative training cost of {family}](figures/{path.name})", ""]

@@ -47,7 +47,13 @@ class Settings:
 def curve(condition: Condition, agent: str, metric: str, x: str) -> pd.DataFrame:
     """Mean, standard error and number of seeds of ``eval/<agent>/<metric>`` at each x (frames or iteration)
     where any seed evaluated; empty when no run evaluated during training."""
-    column, x_column = f"eval/{agent}/{metric}", X_AXES[x]
+    return column_curve(condition, f"eval/{agent}/{metric}", x)
+
+
+def column_curve(condition: Condition, column: str, x: str) -> pd.DataFrame:
+    """Mean, standard error and number of seeds of ``metrics.csv``'s ``column`` at each x (frames or iteration)
+    where any seed has a value; empty when no run has the column."""
+    x_column = X_AXES[x]
     series = [
         run.metrics.set_index(x_column)[column].dropna().rename(run.seed)
         for run in condition.runs
@@ -85,12 +91,97 @@ def finals(condition: Condition, agents: Sequence[str], metric: str, settings: S
 
 def final_of(condition: Condition, agent: str, metric: str, key: str, settings: Settings) -> Final:
     """``summary.json``'s ``key`` across seeds as the final value of ``agent``'s ``metric``."""
-    values = summary_values(condition, key)
+    return final_from(agent, metric, summary_values(condition, key), settings)
+
+
+def final_from(agent: str, metric: str, values: np.ndarray, settings: Settings) -> Final:
+    """``values`` (one per seed, NaN where a run has none) as the final value of ``agent``'s ``metric``."""
     mean, se, _ = mean_se(values)
     interval = interval_estimate(
         values, "iqm", confidence=settings.confidence, n_resamples=settings.n_resamples, seed=settings.seed
     )
     return Final(agent, metric, values, float(mean), float(se), interval)
+
+
+# ---- safety ------------------------------------------------------------------------------------------------------
+
+CUMULATIVE_COST = "train/cumulative_cost"
+SHIELD_RATE = "train/shield_rate"
+# Safety Gym's triple (Ray, Achiam & Amodei 2019, "Benchmarking Safe Exploration in Deep RL"), after the learner's
+# success, then the shield's share of the learner's steps where runs log it: metric -> column header.
+SAFETY_COLUMNS = {
+    "success_rate": "success",
+    "return": "final return",
+    "cost": "final cost",
+    "cost_rate": "training cost rate",
+    "shield_rate": "shield rate",
+}
+NOT_RECORDED = "—"
+
+
+def records_safety(condition: Condition) -> bool:
+    """Whether any run of ``condition`` has the safety accounting (runs written before it have neither key)."""
+    return any("cost_rate" in run.summary or CUMULATIVE_COST in run.metrics.columns for run in condition.runs)
+
+
+def learner_agent(condition: Condition) -> tuple[str, str]:
+    """(agent, display name) whose return and cost measure the learner: ``ego`` where it plays one agent against
+    a scripted opponent (``ego/return``, ``ego/cost``), else ``all``, the overall keys (the mean over agents)."""
+    agents = condition.agents()
+    return agents[0] if agents and agents[0][0] == "ego" else ("all", "all agents")
+
+
+def safety_finals(condition: Condition, settings: Settings) -> dict[str, Final]:
+    """The learner's final success and Safety Gym's triple: final return and final episode cost (the last
+    evaluation) and the cost rate over all of training (``cost_rate``, the training cost per frame); plus the mean
+    of ``train/shield_rate`` over training where any run logs it. Keyed by ``SAFETY_COLUMNS``' metrics."""
+    agent, _ = learner_agent(condition)
+    prefix = "ego/" if agent == "ego" else ""
+    found = {
+        metric: final_of(condition, agent, metric, f"{prefix}{metric}", settings)
+        for metric in ("success_rate", "return", "cost")
+    }
+    found["cost_rate"] = final_of(condition, agent, "cost_rate", "cost_rate", settings)
+    if any(SHIELD_RATE in run.metrics.columns for run in condition.runs):
+        # Every iteration collects the same frames, so the mean over iterations is the share of all training steps.
+        values = np.array(
+            [
+                run.metrics[SHIELD_RATE].mean() if SHIELD_RATE in run.metrics.columns else math.nan
+                for run in condition.runs
+            ],
+            dtype=float,
+        )
+        found["shield_rate"] = final_from(agent, "shield_rate", values, settings)
+    return found
+
+
+def recorded(final: Final | None) -> bool:
+    """Whether any seed has a value (a NaN-only final is a metric the runs did not record, not a zero)."""
+    return final is not None and bool(np.any(~np.isnan(final.values)))
+
+
+def safety_table(rows: Sequence[tuple[Condition, str, dict[str, Final]]]) -> list[str]:
+    """Markdown rows: condition, learner, seeds, then mean ± SE of each of ``SAFETY_COLUMNS`` (shield rate only
+    where some row has it); a metric no seed of a condition recorded shows ``NOT_RECORDED``."""
+    metrics = [m for m in SAFETY_COLUMNS if m != "shield_rate" or any(recorded(f.get(m)) for _, _, f in rows)]
+    lines = [
+        "| id | condition | learner | seeds | " + " | ".join(SAFETY_COLUMNS[m] for m in metrics) + " |",
+        "| --- | --- | --- | ---: | " + " | ".join("---" for _ in metrics) + " |",
+    ]
+    for condition, agent_name, by_metric in rows:
+        cells = []
+        for metric in metrics:
+            final = by_metric.get(metric)
+            if not recorded(final):
+                cells.append(NOT_RECORDED)
+                continue
+            cells.append(_mean_se_text(final))
+        lines.append(
+            f"| {condition.ident} | {condition.label} | {agent_name} | {len(condition.runs)} | "
+            + " | ".join(cells)
+            + " |"
+        )
+    return lines
 
 
 class NumberLog:
@@ -155,6 +246,22 @@ def fmt(value: float, digits: int = 3) -> str:
     return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
 
+# A learner that rarely collides pays a cost every thousand frames or fewer: fixed decimals would print 0.000.
+SIGNIFICANT_DIGITS = {"cost_rate": 3}
+
+
+def fmt_metric(value: float, metric: str) -> str:
+    """``value`` of ``metric`` as ``report.md`` shows it: 3 decimals, or 3 significant digits for a small rate."""
+    if metric in SIGNIFICANT_DIGITS and value is not None and not math.isnan(value) and value != 0:
+        return f"{value:.{SIGNIFICANT_DIGITS[metric]}g}"
+    return fmt(value)
+
+
+def _mean_se_text(final: Final) -> str:
+    se = "" if math.isnan(final.se) else f" ± {fmt_metric(final.se, final.metric)}"
+    return fmt_metric(final.mean, final.metric) + se
+
+
 def final_table(rows: Sequence[tuple[Condition, str, Final]], confidence: float) -> list[str]:
     """Markdown rows: condition, agent, metric, seeds, mean ± SE, IQM [CI]."""
     level = f"{confidence:.0%}"
@@ -165,12 +272,12 @@ def final_table(rows: Sequence[tuple[Condition, str, Final]], confidence: float)
     for condition, agent_name, final in rows:
         n = int(np.sum(~np.isnan(final.values)))
         interval = final.iqm
-        ci = "no CI" if math.isnan(interval.low) else f"[{fmt(interval.low)}, {fmt(interval.high)}]"
+        low, high = fmt_metric(interval.low, final.metric), fmt_metric(interval.high, final.metric)
+        ci = "no CI" if math.isnan(interval.low) else f"[{low}, {high}]"
         if interval.note.startswith("2 runs"):
             ci += " (coarse)"
-        mean_text = fmt(final.mean) + ("" if math.isnan(final.se) else f" ± {fmt(final.se)}")
         lines.append(
-            f"| {condition.ident} | {condition.label} | {agent_name} | {final.metric} | {n} | {mean_text} | "
-            f"{fmt(interval.point)} {ci} |"
+            f"| {condition.ident} | {condition.label} | {agent_name} | {final.metric} | {n} | "
+            f"{_mean_se_text(final)} | {fmt_metric(interval.point, final.metric)} {ci} |"
         )
     return lines
