@@ -2,7 +2,8 @@
 
 Metric names (every tool reads these keys): ``success_rate``, ``collision_rate`` (any), ``agent_collision_rate``,
 ``wall_collision_rate``, ``timeout_rate``, ``return``, ``episode_length``, ``path_efficiency``,
-``min_separation``, ``wait_steps``, ``cost``; per agent as ``agent0/success_rate``...; in an ego view also ``ego/...`` and
+``min_separation``, ``wait_steps``, ``cost``, ``shield_rate`` (shielded views: the share of the agents' moving steps
+whose action the shield replaced); per agent as ``agent0/success_rate``...; in an ego view also ``ego/...`` and
 ``other/...``; and for the whole team ``team/success_rate`` (every agent reached its goal), ``makespan`` and
 ``deadlock_rate``.
 
@@ -65,6 +66,7 @@ class EpisodeRecord:
     shortest: np.ndarray
     min_separation: np.ndarray  # (episodes,), inf with a single agent
     wait_steps: np.ndarray | None = None  # (episodes, N)
+    shielded: np.ndarray | None = None  # (episodes, N): steps whose action the shield replaced (shield=true views)
     deadlocked: np.ndarray | None = None  # (episodes,) bool
     trajectories: np.ndarray | None = None  # (T, k, N, 2) positions of the first k worlds, NaN once finished
     ego: int | None = None
@@ -105,6 +107,7 @@ def run_episodes(
     finished = torch.zeros(n_worlds, dtype=torch.bool, device=device)
     returns = torch.zeros(n_worlds, n_agents, device=device)
     costs = torch.zeros(n_worlds, n_agents, device=device)
+    shielded = torch.zeros(n_worlds, n_agents, device=device) if getattr(env, "shield", False) else None
     travelled = torch.zeros(n_worlds, n_agents, device=device)
     agent_length = torch.zeros(n_worlds, n_agents, device=device)
     world_length = torch.zeros(n_worlds, device=device)
@@ -137,6 +140,8 @@ def run_episodes(
             live = running.unsqueeze(-1)
             returns += world.get("reward").squeeze(-1) * live
             costs += world.get("cost").squeeze(-1) * live
+            if shielded is not None:
+                shielded += world.get("shield").squeeze(-1) * live
             travelled += moved * live
             info = {key: world.get(("info", key)).squeeze(-1) for key in INFO_KEYS}
             in_world = world.get("present").squeeze(-1)
@@ -179,6 +184,7 @@ def run_episodes(
         shortest=shortest.cpu().numpy(),
         min_separation=min_separation.cpu().numpy(),
         wait_steps=wait_steps.cpu().numpy(),
+        shielded=shielded.cpu().numpy() if shielded is not None else None,
         deadlocked=deadlocked.cpu().numpy(),
         trajectories=np.stack(trajectory) if record_trajectories else None,
         ego=getattr(env, "ego", None),
@@ -239,6 +245,8 @@ def _group_metrics(record: EpisodeRecord, agents: list[int]) -> dict[str, float]
     out["path_efficiency"] = float(efficiency[reached].mean()) if reached.any() else float("nan")
     if record.wait_steps is not None:
         out["wait_steps"] = float(record.wait_steps[:, agents].mean())
+    if record.shielded is not None:  # of the steps the agents moved, the share the shield corrected
+        out["shield_rate"] = float(record.shielded[:, agents].sum() / max(record.agent_length[:, agents].sum(), 1.0))
     return out
 
 
