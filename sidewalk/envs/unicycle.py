@@ -257,50 +257,82 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         cannot always leave a way out (an agent cornered by the other's worst case), and noise larger than the
         room it leaves defeats it: tests/test_safety.py measures how often a collision still happens."""
         p = self.params
-        high = self._action_high
-        proposed = torch.maximum(torch.minimum(action, high), -high)  # (B, N, 2)
+        batch = self.num_envs
+        agents = shielded.nonzero().squeeze(-1)
+        # Every (world, shielded agent) pair, as flat rows; most proposed actions are safe, so the candidates are
+        # looked at only for the pairs whose proposed action is not (a tenth of a step's pairs or fewer).
+        world = torch.arange(batch, device=self.device).repeat(len(agents))
+        agent = agents.repeat_interleave(batch)
+        high = self._action_high.view(2, 1, 1)
+        proposed = torch.maximum(torch.minimum(action[world, agent].t(), high[:, 0]), -high[:, 0])  # (2, M)
+        unsafe = ~self._robustly_safe(proposed.unsqueeze(1), world, agent)[0] & self._active[world, agent]
+        intervened = torch.zeros_like(self._active)
+        if not bool(unsafe.any()):
+            return action, intervened
+        rows = unsafe.nonzero().squeeze(-1)
+        world, agent, proposed = world[rows], agent[rows], proposed[:, rows]
         levels = torch.linspace(-1.0, 1.0, self.SHIELD_LEVELS, device=self.device)
-        grid = torch.cartesian_prod(levels, levels) * high  # (K, 2)
-        brake = torch.stack([-torch.sign(self._speed) * p.max_accel_mps2, proposed[..., 1]], -1)
-        batch, n = self.num_envs, self.n_agents
-        candidates = torch.cat([proposed.unsqueeze(2), brake.unsqueeze(2), grid.expand(batch, n, -1, 2)], 2)
-
-        wall_safe, clearance = self._look_ahead(candidates)
+        grid = (torch.cartesian_prod(levels, levels) * self._action_high).t()  # (2, G)
+        brake = torch.stack([-torch.sign(self._speed[world, agent]) * p.max_accel_mps2, proposed[1]])
+        candidates = torch.cat(
+            [proposed.unsqueeze(1), brake.unsqueeze(1), grid.unsqueeze(-1).expand(-1, -1, len(rows))], 1
+        )  # (2, K, m)
+        wall_safe, clearance = self._look_ahead(candidates, world, agent)
         safe = wall_safe & (clearance >= 0)
-        robust = safe
-        if p.noise > 0.0:
-            for corner in ((1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)):
-                noisy = candidates + torch.tensor(corner, device=self.device) * p.noise
-                corner_wall, corner_clearance = self._look_ahead(torch.maximum(torch.minimum(noisy, high), -high))
-                robust = robust & corner_wall & (corner_clearance >= 0)
+        robust = self._robustly_safe(candidates, world, agent, nominal=safe)
 
         # Tiers 4 apart, and within a tier at most 1.75 of preference: the nearest candidate where it is safe, else
         # the one that keeps farthest from the others' reach (the way out of a corner, if the next step has one).
-        distance = ((candidates - proposed.unsqueeze(2)) / high).square().sum(-1) / 8.0  # within [0, 1]
+        distance = ((candidates - proposed.unsqueeze(1)) / high).square().sum(0) / 8.0  # within [0, 1]
         within = torch.where(safe, -distance, 1.5 * clearance.clamp(-1.0, 0.0) - 0.25 * distance)
         score = 16.0 * robust + 8.0 * safe + 4.0 * wall_safe + within
-        score[..., 1] += 1e-6  # among equals (nothing safe), brake
-        chosen = score.argmax(-1)
-        guard = shielded.unsqueeze(0) & self._active
-        intervened = guard & (chosen != 0)
-        replacement = candidates.gather(2, chosen[..., None, None].expand(batch, n, 1, 2)).squeeze(2)
-        return torch.where(intervened.unsqueeze(-1), replacement, action), intervened
+        score[1] += 1e-6  # among equals (nothing safe), brake
+        chosen = score.argmax(0)  # (m,)
+        replaced = chosen != 0
+        replacement = candidates.gather(1, chosen.view(1, 1, -1).expand(2, 1, -1)).squeeze(1).t()  # (m, 2)
+        safe_action = action.clone()
+        safe_action[world, agent] = torch.where(replaced.unsqueeze(-1), replacement, action[world, agent])
+        intervened[world, agent] = replaced
+        return safe_action, intervened
 
-    def _look_ahead(self, candidates: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """For candidate action k (B, N, K, 2), within the bounds, of every agent: bool (B, N, K), it is wall-safe,
-        and float (B, N, K), the clearance in metres its path keeps from the nearest other agent's reach (agent-safe
-        when ≥ 0; ``shield_action`` says what both mean)."""
+    def _robustly_safe(
+        self, candidates: torch.Tensor, world: torch.Tensor, agent: torch.Tensor, nominal: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Bool (K, M): candidate (2, K, M) of agent ``agent`` in world ``world`` is safe without noise (``nominal``,
+        if given, says so already) and at the four corners of its action-noise box."""
+        if nominal is None:
+            wall_safe, clearance = self._look_ahead(candidates, world, agent)
+            nominal = wall_safe & (clearance >= 0)
+        noise = self.params.noise
+        if noise == 0.0:
+            return nominal
+        high = self._action_high.view(2, 1, 1)
+        robust = nominal
+        for corner in ((1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)):
+            noisy = candidates + torch.tensor(corner, device=self.device).view(2, 1, 1) * noise
+            wall_safe, clearance = self._look_ahead(torch.maximum(torch.minimum(noisy, high), -high), world, agent)
+            robust = robust & wall_safe & (clearance >= 0)
+        return robust
+
+    def _look_ahead(
+        self, candidates: torch.Tensor, world: torch.Tensor, agent: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """For candidate actions (2, K, M) -- (acceleration, turn) within the bounds -- of agent ``agent[m]`` in world
+        ``world[m]``: bool (K, M), the candidate is wall-safe, and float (K, M), the clearance in metres its path
+        keeps from the nearest other agent's reach (agent-safe when ≥ 0; ``shield_action`` says what both mean).
+        Rows run last: broadcasting over the long last axis is ~10× faster than over trailing axes of 2."""
         p = self.params
-        x0, y0, v0 = self._x.unsqueeze(-1), self._y.unsqueeze(-1), self._speed.unsqueeze(-1)  # (B, N, 1)
-        heading = self._heading.unsqueeze(-1) + candidates[..., 1]
-        speed = (v0 + candidates[..., 0] * p.dt_s).clamp(-p.max_speed_mps, p.max_speed_mps)
+        x0, y0 = self._x[world, agent], self._y[world, agent]  # (M,)
+        heading = self._heading[world, agent] + candidates[1]
+        speed = (self._speed[world, agent] + candidates[0] * p.dt_s).clamp(-p.max_speed_mps, p.max_speed_mps)
         cos, sin = torch.cos(heading), torch.sin(heading)
-        x1, y1 = x0 + speed * cos * p.dt_s, y0 + speed * sin * p.dt_s
+        dx, dy = speed * cos * p.dt_s, speed * sin * p.dt_s  # (K, M): the step
+        x1, y1 = x0 + dx, y0 + dy
         # Full braking lowers |v| by a·dt a step: it covers dt·Σ_k max(|v| - k·a·dt, 0) before it stops.
         step_drop = p.max_accel_mps2 * p.dt_s
         k = torch.floor(speed.abs() / step_drop)
-        stopping = p.dt_s * (k * speed.abs() - step_drop * k * (k + 1) / 2)
-        xs, ys = x1 + torch.sign(speed) * stopping * cos, y1 + torch.sign(speed) * stopping * sin
+        stopping = p.dt_s * (k * speed.abs() - step_drop * k * (k + 1) / 2) * torch.sign(speed)
+        xs, ys = x1 + stopping * cos, y1 + stopping * sin
         (x_low, x_high), (y_low, y_high) = self._x_range, self._y_range
         wall_safe = (xs >= x_low) & (xs <= x_high) & (ys >= y_low) & (ys <= y_high)
         wall_safe &= (x1 >= x_low) & (x1 <= x_high) & (y1 >= y_low) & (y1 <= y_high)
@@ -308,16 +340,18 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
             for px, py in ((x1, y1), (xs, ys), ((x1 + xs) / 2, (y1 + ys) / 2)):
                 wall_safe &= ~self._touches_box(px, py)
 
-        # (B, i, K, j): the closest approach of agent i's path in the step (x0, y0) -> (x1, y1) to agent j's centre.
-        dx, dy = (x1 - x0).unsqueeze(-1), (y1 - y0).unsqueeze(-1)
-        to_x = self._x[:, None, None, :] - x0.unsqueeze(-1)
-        to_y = self._y[:, None, None, :] - y0.unsqueeze(-1)
+        # (K, N, M): the closest approach of the agent's path in the step to agent j's centre, j over the world's agents.
+        to_x = (self._x.index_select(0, world).t() - x0).unsqueeze(0)  # (1, N, M)
+        to_y = (self._y.index_select(0, world).t() - y0).unsqueeze(0)
+        dx, dy = dx.unsqueeze(1), dy.unsqueeze(1)
         along = ((to_x * dx + to_y * dy) / (dx.square() + dy.square()).clamp_min(1e-12)).clamp(0.0, 1.0)
         gap_sq = (to_x - along * dx).square() + (to_y - along * dy).square()
-        reach = (self._speed.abs() + step_drop) * p.dt_s * self._active  # (B, N): how far j can get in the step
-        keep = 2 * p.agent_radius_m + reach[:, None, None, :]
-        other = self._not_self.squeeze(-1)[None, :, None, :] & self._present[:, None, None, :]
-        clearance = torch.where(other, gap_sq.sqrt() - keep, torch.full_like(gap_sq, math.inf)).amin(-1)
+        # How far agent j can get in the step (its worst case), while it moves.
+        reach = ((self._speed.abs() + step_drop) * p.dt_s * self._active).index_select(0, world).t()  # (N, M)
+        keep = 2 * p.agent_radius_m + reach
+        others = torch.arange(self.n_agents, device=self.device).unsqueeze(-1) != agent  # (N, M)
+        other = others & self._present.index_select(0, world).t()
+        clearance = torch.where(other, gap_sq.sqrt() - keep, torch.full_like(gap_sq, math.inf)).amin(1)
         return wall_safe, clearance
 
     def _near_miss(self) -> torch.Tensor:

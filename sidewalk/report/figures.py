@@ -456,6 +456,8 @@ def family_sections(
         figure = Figure(figsize=(13, 4.8))
         axes = figure.subplots(1, len(CURVE_METRICS), squeeze=False)[0]
         within = varying_keys(members)
+        if len({c.algo for c in members}) > 1:  # each learner has settings of its own; its name (in the label) says which
+            within = [key for key in within if not key.startswith("algo.")]
         labels = [f"{c.ident} {describe(c, within) or c.label}" for c in members]
         drawn = False
         for ax, metric in zip(axes, CURVE_METRICS):
