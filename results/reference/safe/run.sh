@@ -21,25 +21,27 @@ launcher=(hydra/launcher=joblib hydra.launcher.n_jobs=2)
 only="${ONLY:-}"  # ONLY=name runs one sweep of the list below
 failed=()
 
-sweep() {  # sweep NAME OVERRIDES...: one multirun into $root/NAME, timed
-  local name="$1" start
-  shift
+# Each domain's sweeps share one folder, so that the report draws the unconstrained, shielded and constrained learners
+# of a domain in one family (one cost figure, one table); their run folders' names (the overrides) differ.
+sweep() {  # sweep NAME FOLDER OVERRIDES...: one multirun into $root/FOLDER, timed
+  local name="$1" folder="$2" start
+  shift 2
   [[ -n "$only" && "$only" != "$name" ]] && return
   start=$(date +%s)
   echo "== $name: python runners/main.py -m $* ($(date -Is))" >&2
-  if ! python runners/main.py -m "$@" logger=none "hydra.sweep.dir=$root/$name" "${launcher[@]}"; then
+  if ! python runners/main.py -m "$@" logger=none "hydra.sweep.dir=$root/$folder" "${launcher[@]}"; then
     failed+=("$name")
   fi
   echo "== $name: $(( $(date +%s) - start )) s" >&2
 }
 
-sweep discrete_dqn +experiment=safe_discrete algo=dqn shield=false,true seed=0,1,2
-sweep continuous_trpo +experiment=safe_continuous algo=trpo iterations=200 shield=false,true seed=0,1,2
-sweep discrete_ppo_lagrangian +experiment=safe_discrete algo=ppo_lagrangian shield=false seed=0,1,2 \
+sweep discrete_dqn discrete +experiment=safe_discrete algo=dqn shield=false,true seed=0,1,2
+sweep continuous_trpo continuous +experiment=safe_continuous algo=trpo iterations=200 shield=false,true seed=0,1,2
+sweep discrete_ppo_lagrangian discrete +experiment=safe_discrete algo=ppo_lagrangian shield=false seed=0,1,2 \
   iterations=50 eval_every=10 algo.minibatch_size=512
-sweep continuous_ppo_lagrangian +experiment=safe_continuous algo=ppo_lagrangian shield=false iterations=200 seed=0,1,2
+sweep continuous_ppo_lagrangian continuous +experiment=safe_continuous algo=ppo_lagrangian shield=false iterations=200 seed=0,1,2
 
-python runners/report.py "$root" --out results/reference/safe
+python runners/report.py "$root" --out results/reference/safe --preamble results/reference/safe/notes.md
 if ((${#failed[@]})); then
   echo "failed sweeps: ${failed[*]}" >&2
   exit 1
