@@ -199,8 +199,6 @@ def validate(cfg: DictConfig) -> Experiment:
     check_int("checkpoint_every", cfg.checkpoint_every, 0)
     check_int("torch_threads", cfg.torch_threads, 1)
     check_choice("keep_checkpoint", cfg.keep_checkpoint, KEEP_CHECKPOINT)
-    if not isinstance(cfg.shield, bool):
-        raise TypeError(f"shield={cfg.shield!r} must be true or false")
     if not str(cfg.device).startswith(("cpu", "cuda", "mps")):
         raise ValueError(f"device={cfg.device!r} is not valid; valid: 'cpu', 'cuda', 'cuda:N', 'mps'")
 

@@ -8,8 +8,8 @@ A subclass supplies the dynamics through four hooks, VMAS-style:
   alike -- back at their start;
 - ``_advance(action, active)``: move the agents one step and report, per agent (B, N), who reached its goal,
   who hit a wall, who hit another agent, and the shaping term of the step;
-- ``_near_miss()``: bool (B, N), after a step: the agent is within ``near_miss_margin`` of another agent in the
-  world (the near-miss cost, ``cost="near_miss"``);
+- ``_centres()`` and ``_near(gap_sq)``: the agents' centres and whether two are within ``near_miss_margin``, from
+  which the base finds the near misses of a step (``cost="near_miss"``);
 - ``_observe(worlds)``: the per-agent entries ``observation``, ``state`` and ``goal`` of every world (``worlds`` None)
   or of the rows ``worlds`` (int64 (k,)) only: on a partial reset the base computes the worlds just reset and gives
   every other world back exactly what the last output gave it. Random draws (observation noise) stay those of
@@ -141,6 +141,9 @@ class SidewalkEnvBase(EnvBase):
         self._steps = torch.zeros(num_envs, dtype=torch.long, device=self.device)
         # The observation, state and goal entries of the last output; a partial reset recomputes only its worlds.
         self._last_observed: dict[str, torch.Tensor] | None = None
+        # (N, N, 1): pairs of two different agents, for pairwise checks run agent-major, (N, N, B): broadcasting over
+        # a long last axis is ~10× faster than over a trailing axis of 2 agents.
+        self._not_self = ~torch.eye(self.n_agents, dtype=torch.bool, device=self.device).unsqueeze(-1)
         self._init_world()
         self._make_spec()
 
@@ -163,8 +166,20 @@ class SidewalkEnvBase(EnvBase):
     def _observe(self, worlds: torch.Tensor | None) -> dict[str, torch.Tensor]:
         raise NotImplementedError
 
-    def _near_miss(self) -> torch.Tensor:
+    def _centres(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The agents' centres as two float (N, B) planes, agent-major (grid: row, col; continuous: x, y)."""
         raise NotImplementedError
+
+    def _near(self, gap_sq: torch.Tensor) -> torch.Tensor:
+        """Bool, elementwise: centres ``gap_sq`` (squared distance) apart are within the near-miss margin."""
+        raise NotImplementedError
+
+    def _near_miss(self) -> torch.Tensor:
+        """Bool (B, N): the agent is in the world and another agent in the world is near it (``_near``)."""
+        first, second = self._centres()
+        gap_sq = (first.unsqueeze(1) - first.unsqueeze(0)).square() + (second.unsqueeze(1) - second.unsqueeze(0)).square()
+        near = self._near(gap_sq) & self._present.t().unsqueeze(0) & self._not_self
+        return near.any(1).t() & self._present
 
     def shield_action(self, action: torch.Tensor, shielded: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The safety shield (``shield=true``): the joint action ``action`` (B, N[, 2]) about to be stepped, with

@@ -136,9 +136,6 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         self._move_col = torch.tensor([dc for _, dc in MOVES], dtype=torch.long, device=device)
         self._blocked = layout.blocked_mask(device).reshape(-1)
         self._has_blocked = bool(self._blocked.any())
-        # Pairwise agent checks run agent-major, (N, N, B): broadcasting over a long last axis is ~10× faster
-        # than over a trailing axis of 2 agents.
-        self._not_self = ~torch.eye(n, dtype=torch.bool, device=device).unsqueeze(-1)
         self._ego_order = (torch.arange(n, device=device)[:, None] + torch.arange(n, device=device)) % n
         shape = (self.num_envs, n)
         self._row = torch.zeros(shape, dtype=torch.long, device=device)
@@ -333,12 +330,11 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         intervened = guard & (chosen != action)
         return torch.where(intervened, chosen, action), intervened
 
-    def _near_miss(self) -> torch.Tensor:
-        row, col = self._row.t().to(torch.float32), self._col.t().to(torch.float32)  # (N, B): agent-major
-        gap_sq = (row.unsqueeze(1) - row.unsqueeze(0)).square() + (col.unsqueeze(1) - col.unsqueeze(0)).square()
-        present = self._present.t().unsqueeze(0)
-        near = (gap_sq <= self.params.near_miss_margin**2) & present & self._not_self
-        return near.any(1).t() & self._present
+    def _centres(self) -> tuple[torch.Tensor, torch.Tensor]:
+        return self._row.t().to(torch.float32), self._col.t().to(torch.float32)
+
+    def _near(self, gap_sq: torch.Tensor) -> torch.Tensor:
+        return gap_sq <= self.params.near_miss_margin**2  # cells: at the margin counts (1: the next cell)
 
     def _observe(self, worlds: torch.Tensor | None) -> dict[str, torch.Tensor]:
         # Grid observations are a deterministic function of the state: a reset observes its worlds only.

@@ -104,9 +104,8 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
     def _init_world(self) -> None:
         p, device, n = self.params, self.device, self.n_agents
         self._action_high = torch.tensor([p.max_accel_mps2, p.max_turn_rad], device=device)
-        # Pairwise agent checks run agent-major, (N, N, B), and coordinates live in separate (B, N) tensors:
-        # broadcasting over a long last axis is ~10× faster than over trailing axes of size 2.
-        self._not_self = ~torch.eye(n, dtype=torch.bool, device=device).unsqueeze(-1)
+        # Coordinates live in separate (B, N) tensors and pairwise agent checks run agent-major, (N, N, B), with the
+        # base's _not_self: broadcasting over a long last axis is ~10× faster than over trailing axes of size 2.
         self._ego_order = (torch.arange(n, device=device)[:, None] + torch.arange(n, device=device)) % n
         # The swept contact of agents i and j is that of j and i, bit for bit: it is computed for the pairs i < j
         # and copied to rows i·N + j and j·N + i of the (N·N, B) result, whose diagonal rows are True.
@@ -354,12 +353,11 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         clearance = torch.where(other, gap_sq.sqrt() - keep, torch.full_like(gap_sq, math.inf)).amin(1)
         return wall_safe, clearance
 
-    def _near_miss(self) -> torch.Tensor:
-        x, y = self._x.t(), self._y.t()  # (N, B): agent-major
-        gap_sq = (x.unsqueeze(1) - x.unsqueeze(0)).square() + (y.unsqueeze(1) - y.unsqueeze(0)).square()
-        reach = 2 * self.params.agent_radius_m + self.params.near_miss_margin
-        near = (gap_sq < reach**2) & self._present.t().unsqueeze(0) & self._not_self
-        return near.any(1).t() & self._present
+    def _centres(self) -> tuple[torch.Tensor, torch.Tensor]:
+        return self._x.t(), self._y.t()
+
+    def _near(self, gap_sq: torch.Tensor) -> torch.Tensor:
+        return gap_sq < (2 * self.params.agent_radius_m + self.params.near_miss_margin) ** 2  # discs' edges
 
     def _touches_box(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         """Bool (B, N): the agent's disc overlaps an interior box."""
