@@ -77,6 +77,37 @@ class DQNConfig(AlgoConfig):
         check_choice("algo.loss_function", self.loss_function, ("l2", "l1", "smooth_l1"))
 
 
+def decay_epsilon(greedy: EGreedyModule, frames_seen: int, decay_frames: int) -> None:
+    """Set ``greedy``'s ε to its linear schedule at ``frames_seen``: ``EGreedyModule.step`` loops once per frame,
+    and one call with the decayed value is the same schedule."""
+    greedy.eps.copy_(
+        torch.clamp(
+            greedy.eps_init - (greedy.eps_init - greedy.eps_end) * frames_seen / decay_frames, min=greedy.eps_end
+        )
+    )
+
+
+def replay_updates(algo: Algorithm, replay_buffer: Any) -> dict[str, float]:
+    """``updates_per_batch`` gradient steps of ``algo``'s loss on replayed minibatches, each followed by its target
+    update, once the buffer holds ``learning_starts`` transitions; ``{"loss": mean}``, or nothing before that. DQN
+    and the multi-agent IQL/VDN/QMIX share it."""
+    cfg = algo.config
+    if len(replay_buffer) < max(cfg.learning_starts, cfg.batch_size):
+        return {}
+    losses = []
+    for _ in range(cfg.updates_per_batch):
+        sample = replay_buffer.sample(cfg.batch_size).to(algo.device)
+        loss = algo.loss(sample)["loss"]
+        algo.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(algo.loss.parameters(), cfg.max_grad_norm)
+        algo.optimizer.step()
+        algo.target_updater.step()
+        losses.append(loss.detach())
+        algo.updates += 1
+    return {"loss": float(torch.stack(losses).mean()) if losses else float("nan")}
+
+
 class DQN(Algorithm):
     """Double DQN with a dueling head (or a plain one) over the paper's conv stack (or over the raw vector
     observation)."""
@@ -123,32 +154,11 @@ class DQN(Algorithm):
 
     def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
         cfg: DQNConfig = self.config
-        frames = batch.numel()
-        self.frames_seen += frames
+        self.frames_seen += batch.numel()
         replay_buffer.extend(batch.select(*TRANSITION_KEYS).reshape(-1))
-        # EGreedyModule.step loops once per frame; one call with the decayed value is the same schedule.
-        self.greedy.eps.copy_(
-            torch.clamp(
-                self.greedy.eps_init - (self.greedy.eps_init - self.greedy.eps_end) * self.frames_seen / cfg.eps_decay_frames,
-                min=self.greedy.eps_end,
-            )
-        )
+        decay_epsilon(self.greedy, self.frames_seen, cfg.eps_decay_frames)
         logs: dict[str, float] = {"epsilon": float(self.greedy.eps)}
-        if len(replay_buffer) < max(cfg.learning_starts, cfg.batch_size):
-            return logs
-        losses = []
-        for _ in range(cfg.updates_per_batch):
-            sample = replay_buffer.sample(cfg.batch_size).to(self.device)
-            loss = self.loss(sample)["loss"]
-            self.optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.max_grad_norm)
-            self.optimizer.step()
-            self.target_updater.step()
-            losses.append(loss.detach())
-            self.updates += 1
-        logs["loss"] = float(torch.stack(losses).mean()) if losses else float("nan")
-        return logs
+        return {**logs, **replay_updates(self, replay_buffer)}
 
     def modules(self) -> dict[str, torch.nn.Module]:
         return {"loss": self.loss, "greedy": self.greedy}

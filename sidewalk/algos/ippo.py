@@ -32,6 +32,7 @@ from torchrl.objectives.value import GAE
 from sidewalk._checks import check_int, check_range
 from sidewalk.algos.base import FixedExplorationPolicy, MultiAgentAlgorithm, MultiAgentConfig
 from sidewalk.algos.networks import PAPER_CONV, RunningNorm, VectorEncoder, is_image_spec
+from sidewalk.algos.ppo import LOSS_LOGS, clipped_ppo_update
 from sidewalk.envs.base import AGENT_GROUP
 
 LOG_PROB_KEY = (AGENT_GROUP, "action_log_prob")
@@ -201,33 +202,9 @@ class IPPO(MultiAgentAlgorithm):
         return self._evaluation
 
     def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
-        cfg: IPPOConfig = self.config
-        self.frames_seen += batch.numel()
-        batch = batch.to(self.device)
-        with torch.no_grad():
-            self.advantage(batch)  # GAE needs the (worlds, time) layout: time is the last batch dimension
-        flat = batch.reshape(-1)
-        if self.obs_norm is not None:
-            self.obs_norm.update(flat.get(self.OBSERVATION_KEY))
-        with torch.no_grad():
-            # The ratio's reference: the policy as it is now, after the statistics moved, as in our PPO.
-            dist = self.actor.get_dist(flat.copy())
-            flat.set(LOG_PROB_KEY, dist.log_prob(flat.get(self.ACTION_KEY)))
-        logs: dict[str, list[torch.Tensor]] = {"loss_objective": [], "loss_critic": [], "loss_entropy": [], "kl_approx": [], "clip_fraction": []}
-        for _ in range(cfg.epochs):
-            order = torch.randperm(flat.numel(), generator=self._generator).to(self.device)
-            for start in range(0, flat.numel(), cfg.minibatch_size):
-                minibatch = flat[order[start : start + cfg.minibatch_size]]
-                losses = self.loss(minibatch)
-                loss = sum(losses[key] for key in losses.keys() if key.startswith("loss_"))
-                self.optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.max_grad_norm)
-                self.optimizer.step()
-                for key in logs:
-                    if key in losses.keys():
-                        logs[key].append(losses[key].detach())
-        return {key: float(torch.stack(values).mean()) for key, values in logs.items() if values}
+        return clipped_ppo_update(
+            self, batch, self.OBSERVATION_KEY, self.ACTION_KEY, LOG_PROB_KEY, (*LOSS_LOGS, "kl_approx", "clip_fraction")
+        )
 
     def modules(self) -> dict[str, torch.nn.Module]:
         return {"loss": self.loss}

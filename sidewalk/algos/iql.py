@@ -25,7 +25,7 @@ from torchrl.modules import MLP, EGreedyModule, MultiAgentNetBase, QValueModule
 from torchrl.objectives import DQNLoss, HardUpdate, LossModule, SoftUpdate, ValueEstimators
 
 from sidewalk.algos.base import MultiAgentAlgorithm, MultiAgentConfig
-from sidewalk.algos.dqn import DQNConfig
+from sidewalk.algos.dqn import DQNConfig, decay_epsilon, replay_updates
 from sidewalk.algos.networks import DuelingHead, is_image_spec, make_encoder
 from sidewalk.envs.base import AGENT_GROUP
 
@@ -216,34 +216,13 @@ class IQL(MultiAgentAlgorithm):
         cfg: IQLConfig = self.config
         self.frames_seen += batch.numel()
         replay_buffer.extend(self.transitions(batch))
-        # EGreedyModule.step loops once per frame; one call with the decayed value is the same schedule.
-        self.greedy.eps.copy_(
-            torch.clamp(
-                self.greedy.eps_init
-                - (self.greedy.eps_init - self.greedy.eps_end) * self.frames_seen / cfg.eps_decay_frames,
-                min=self.greedy.eps_end,
-            )
-        )
+        decay_epsilon(self.greedy, self.frames_seen, cfg.eps_decay_frames)
         # Adam's step size decays linearly to lr_end: the greedy policy settles instead of flipping between near-ties.
         progress = min(1.0, self.frames_seen / cfg.lr_decay_frames) if cfg.lr_decay_frames else 0.0
         for group in self.optimizer.param_groups:
             group["lr"] = cfg.lr + (cfg.lr_end - cfg.lr) * progress
         logs: dict[str, float] = {"epsilon": float(self.greedy.eps), "lr": self.optimizer.param_groups[0]["lr"]}
-        if len(replay_buffer) < max(cfg.learning_starts, cfg.batch_size):
-            return logs
-        losses = []
-        for _ in range(cfg.updates_per_batch):
-            sample = replay_buffer.sample(cfg.batch_size).to(self.device)
-            loss = self.loss(sample)["loss"]
-            self.optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.max_grad_norm)
-            self.optimizer.step()
-            self.target_updater.step()
-            losses.append(loss.detach())
-            self.updates += 1
-        logs["loss"] = float(torch.stack(losses).mean()) if losses else float("nan")
-        return logs
+        return {**logs, **replay_updates(self, replay_buffer)}
 
     def modules(self) -> dict[str, torch.nn.Module]:
         return {"loss": self.loss, "greedy": self.greedy}

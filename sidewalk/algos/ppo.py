@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import NestedKey, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType
@@ -57,6 +57,51 @@ class PPOConfig(AlgoConfig):
             raise TypeError(f"algo.normalize_observations={self.normalize_observations!r} must be a bool")
 
 
+LOSS_LOGS = ("loss_objective", "loss_critic", "loss_entropy")
+
+
+def clipped_ppo_update(
+    algo: Algorithm,
+    batch: TensorDictBase,
+    observation_key: NestedKey,
+    action_key: NestedKey,
+    log_prob_key: NestedKey,
+    log_keys: tuple[str, ...],
+) -> dict[str, float]:
+    """One PPO update of ``algo`` (its ``advantage``, ``obs_norm``, ``actor``, ``loss``, ``optimizer``, minibatch
+    ``_generator`` and ``config``) on a collected (worlds, time) batch: advantages, the observation statistics, the
+    ratio's reference log-prob, then ``epochs`` passes of shuffled minibatches; returns the mean of each of
+    ``log_keys`` the loss reports. Our PPO and the multi-agent IPPO/MAPPO share it, with their own keys."""
+    cfg = algo.config
+    algo.frames_seen += batch.numel()
+    batch = batch.to(algo.device)
+    with torch.no_grad():
+        algo.advantage(batch)  # GAE needs the (worlds, time) layout: time is the last batch dimension
+    flat = batch.reshape(-1)
+    if algo.obs_norm is not None:
+        algo.obs_norm.update(flat.get(observation_key))
+    with torch.no_grad():
+        # The ratio's reference: the policy as it is now, after the statistics moved (TRPO's snapshot does the
+        # same), so the first minibatch starts at ratio 1.
+        dist = algo.actor.get_dist(flat.copy())
+        flat.set(log_prob_key, dist.log_prob(flat.get(action_key)))
+    logs: dict[str, list[torch.Tensor]] = {key: [] for key in log_keys}
+    for _ in range(cfg.epochs):
+        order = torch.randperm(flat.numel(), generator=algo._generator).to(algo.device)
+        for start in range(0, flat.numel(), cfg.minibatch_size):
+            minibatch = flat[order[start : start + cfg.minibatch_size]]
+            losses = algo.loss(minibatch)
+            loss = sum(value for key, value in losses.items() if key.startswith("loss_"))
+            algo.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(algo.loss.parameters(), cfg.max_grad_norm)
+            algo.optimizer.step()
+            for key, values in logs.items():
+                if key in losses:
+                    values.append(losses[key].detach())
+    return {key: float(torch.stack(values).mean()) for key, values in logs.items() if values}
+
+
 class PPO(Algorithm):
     """Clipped PPO with a separate critic; advantages by GAE over each collected (worlds, time) batch."""
 
@@ -85,34 +130,7 @@ class PPO(Algorithm):
         return self._evaluation
 
     def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
-        cfg: PPOConfig = self.config
-        self.frames_seen += batch.numel()
-        batch = batch.to(self.device)
-        with torch.no_grad():
-            self.advantage(batch)  # GAE needs the (worlds, time) layout: time is the last batch dimension
-        flat = batch.reshape(-1)
-        if self.obs_norm is not None:
-            self.obs_norm.update(flat.get("observation"))
-        with torch.no_grad():
-            # The ratio's reference: the policy as it is now, after the statistics moved (TRPO's snapshot does the
-            # same), so the first minibatch starts at ratio 1.
-            dist = self.actor.get_dist(flat.copy())
-            flat.set(self.loss.tensor_keys.sample_log_prob, dist.log_prob(flat.get("action")))
-        logs: dict[str, list[torch.Tensor]] = {"loss_objective": [], "loss_critic": [], "loss_entropy": []}
-        for _ in range(cfg.epochs):
-            order = torch.randperm(flat.numel(), generator=self._generator).to(self.device)
-            for start in range(0, flat.numel(), cfg.minibatch_size):
-                minibatch = flat[order[start : start + cfg.minibatch_size]]
-                losses = self.loss(minibatch)
-                loss = sum(losses[key] for key in losses.keys() if key.startswith("loss_"))
-                self.optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.max_grad_norm)
-                self.optimizer.step()
-                for key in logs:
-                    if key in losses.keys():
-                        logs[key].append(losses[key].detach())
-        return {key: float(torch.stack(values).mean()) for key, values in logs.items() if values}
+        return clipped_ppo_update(self, batch, "observation", "action", self.loss.tensor_keys.sample_log_prob, LOSS_LOGS)
 
     def modules(self) -> dict[str, torch.nn.Module]:
         return {"loss": self.loss}
