@@ -153,6 +153,7 @@ class _SidewalkView(EnvBase):
 
     def _world_spec(self) -> Composite:
         core_agents = self.core.observation_spec[AGENT_GROUP]
+        # The shield's flags are bool (B, N, 1), as the presence flags are.
         extra = {"shield": core_agents["present"].clone()} if self.shield else {}
         return Composite(
             **extra,
@@ -474,8 +475,9 @@ class SelfPlayView(_SidewalkView):
 
     Keys (batch shape (B,), agents group (B, N)): ``("agents", "observation")`` (each agent's ego-centric
     observation), ``("agents", "action")``, ``("agents", "reward")`` (each agent's own reward, cooperative term
-    included), ``("agents", "cost")`` (each agent's safety cost of the step), ``("agents", "done"|"terminated"|"truncated")`` and the root ``done``/``terminated``/``truncated``
-    (B, 1), plus the ``"world"`` group (see the module docstring).
+    included), ``("agents", "cost")`` (each agent's safety cost of the step), ``("agents", "done"|"terminated"|
+    "truncated")`` and the root ``done``/``terminated``/``truncated`` (B, 1), plus the ``"world"`` group (see the
+    module docstring).
 
     The agents' done flags are the *world's*, expanded to every agent, as in TorchRL's multi-agent examples (VMAS):
     an agent that arrived or crashed stays in the episode (its actions no longer move it) until every agent is
@@ -628,5 +630,7 @@ def make_view(
     if kind == "self":
         return SelfPlayView(env, shield=shield)
     if shield:
-        raise ValueError("the 'all' view is the bare core env: call env.shield_action, or use kind='self' with shield=True")
+        raise ValueError(
+            "shield=True: the 'all' view is the bare core env; call env.shield_action, or use kind='self'"
+        )
     return env

@@ -371,16 +371,24 @@ class SidewalkVectorEnv(VectorEnv):
         return tuple(self.view.render(index) for index in range(self.num_envs))
 
 
-def register_envs() -> None:
-    """Register ``sidewalk/Discrete-v0`` and ``sidewalk/Continuous-v0`` with gymnasium (once per process)."""
-    for domain, env_id in ENV_IDS.items():
+def register_envs(
+    ids: Mapping[str, str] = ENV_IDS,
+    env_class: type = SidewalkGymEnv,
+    vector_class: type = SidewalkVectorEnv,
+    **options: Any,
+) -> None:
+    """Register one id per domain of ``ids`` with gymnasium (once per process), built by ``env_class`` and, for
+    ``make_vec``, ``vector_class`` (by default ``sidewalk/Discrete-v0`` and ``sidewalk/Continuous-v0``; the
+    Safety-Gymnasium face registers its own); ``options`` go to ``gymnasium.register``."""
+    for domain, env_id in ids.items():
         if env_id in gymnasium.registry:
             continue
         gymnasium.register(
             id=env_id,
-            entry_point=f"{__name__}:SidewalkGymEnv",
-            vector_entry_point=f"{__name__}:SidewalkVectorEnv",
+            entry_point=f"{env_class.__module__}:{env_class.__qualname__}",
+            vector_entry_point=f"{vector_class.__module__}:{vector_class.__qualname__}",
             kwargs={"domain": domain},
+            **options,
         )
 
 

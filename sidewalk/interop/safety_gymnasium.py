@@ -35,6 +35,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 from sidewalk._checks import check_choice
+from sidewalk.interop import gymnasium as gym_face
 from sidewalk.interop.gymnasium import SidewalkGymEnv, SidewalkVectorEnv
 
 SAFETY_ENV_IDS = {"discrete": "sidewalk/SafetyDiscrete-v0", "continuous": "sidewalk/SafetyContinuous-v0"}
@@ -149,17 +150,8 @@ def make_vec(id: str, num_envs: int = 1, **kwargs: Any) -> SafetySidewalkVectorE
 def register_envs() -> None:
     """Register ``sidewalk/SafetyDiscrete-v0`` and ``sidewalk/SafetyContinuous-v0`` with gymnasium (once per
     process)."""
-    for domain, env_id in SAFETY_ENV_IDS.items():
-        if env_id in gymnasium.registry:
-            continue
-        gymnasium.register(
-            id=env_id,
-            entry_point=f"{__name__}:SafetySidewalkEnv",
-            vector_entry_point=f"{__name__}:SafetySidewalkVectorEnv",
-            # gymnasium's passive checker expects a five-element step.
-            disable_env_checker=True,
-            kwargs={"domain": domain},
-        )
+    # gymnasium's passive checker expects a five-element step.
+    gym_face.register_envs(SAFETY_ENV_IDS, SafetySidewalkEnv, SafetySidewalkVectorEnv, disable_env_checker=True)
 
 
 register_envs()
