@@ -6,8 +6,8 @@ Three views of one batched core env (``DiscreteSidewalkEnv`` or ``ContinuousSide
   flat single-agent ones, so stock single-agent TorchRL losses (``DQNLoss``, ``ClipPPOLoss``) work unchanged.
 - ``CentralizedView(env)``: the learner plays every agent through one joint action and receives the team reward.
 - ``SelfPlayView(env)``: every agent is the learner (``opponent=self``): TorchRL's multi-agent keys
-  ``("agents", ...)`` as the core has them, with the world's done per agent (see the class), for the multi-agent
-  learners (IPPO, MAPPO, IQL, VDN, QMIX);
+  ``("agents", ...)``, each agent with its own life cycle and a mask of the steps that carry learning signal (see
+  the class), for the multi-agent learners (IPPO, MAPPO, IQL, VDN, QMIX);
 - the all-agents view is the multi-agent core env itself (``make_view("all", env)`` returns it).
 
 Every view takes ``shield=True``: before the core steps, the safety shield (the core's ``shield_action``, a one-step
@@ -475,15 +475,21 @@ class SelfPlayView(_SidewalkView):
 
     Keys (batch shape (B,), agents group (B, N)): ``("agents", "observation")`` (each agent's ego-centric
     observation), ``("agents", "action")``, ``("agents", "reward")`` (each agent's own reward, cooperative term
-    included), ``("agents", "cost")`` (each agent's safety cost of the step), ``("agents", "done"|"terminated"|
-    "truncated")`` and the root ``done``/``terminated``/``truncated`` (B, 1), plus the ``"world"`` group (see the
-    module docstring).
+    included), ``("agents", "cost")`` (each agent's safety cost of the step), each agent's own life cycle
+    ``("agents", "done"|"terminated"|"truncated")`` and ``("agents", "mask")``, the root ``done``/``terminated``/
+    ``truncated`` (B, 1), plus the ``"world"`` group (see the module docstring).
 
-    The agents' done flags are the *world's*, expanded to every agent, as in TorchRL's multi-agent examples (VMAS):
-    an agent that arrived or crashed stays in the episode (its actions no longer move it) until every agent is
-    done or the episode times out, so the cooperative reward it gets for the others' arrivals still reaches its
-    learner -- the ego view's default (``end_on_ego_done=False``) for every agent at once. The agents' own outcome
-    flags are in ``("world", "info")``.
+    Each agent has its own life cycle, in TorchRL's multi-agent conventions (``docs/multiagent.md``):
+
+    - a crash terminates the agent at its crash step: its return ends there (it is paid nothing afterwards);
+    - an arrival keeps the agent's value open until the world ends, because eq. 2's cooperative reward for a partner
+      who arrives later is still to come; the agent is terminated with the world (every agent arrived or crashed);
+    - ``truncated``: the time limit, for every agent not terminated before it;
+    - ``mask`` (``~done``, as TorchRL's PettingZoo wrapper's): the agent's value is still open at this state, so the
+      step taken from it carries learning signal; learners leave the other steps out of every loss and statistic.
+
+    The root ``done``/``terminated``/``truncated`` are the world's: every agent done, or the time limit. An agent's
+    own outcome flags are in ``("world", "info")``; whether it still moves is in its observation (``active``).
     """
 
     def __init__(self, env: SidewalkEnvBase, shield: bool = False) -> None:
@@ -498,7 +504,8 @@ class SelfPlayView(_SidewalkView):
         agent_done = {key: done[AGENT_GROUP, key].clone() for key in ("done", "terminated", "truncated")}
         self.observation_spec = Composite(
             {AGENT_GROUP: Composite(observation=core_agents["observation"].clone(),
-                                    cost=core_agents["cost"].clone(), shape=agents_shape, device=self.device),
+                                    cost=core_agents["cost"].clone(), mask=core_agents["present"].clone(),
+                                    shape=agents_shape, device=self.device),
              WORLD: self._world_spec()},
             shape=self.batch_size,
             device=self.device,
@@ -530,9 +537,16 @@ class SelfPlayView(_SidewalkView):
         reward = (
             agents.get("reward") if not reset else torch.zeros((*self._agents_shape, 1), device=self.device)
         )
+        info = agents.get("info")
+        crashed = info.get("collided_agent") | info.get("collided_wall")
         flags = {key: core_out.get(key) for key in ("done", "terminated", "truncated")}
-        per_agent = {key: value.unsqueeze(1).expand(*self._agents_shape, 1) for key, value in flags.items()}
-        group = {"observation": agents.get("observation"), "cost": agents.get("cost"), **per_agent}
+        terminated = crashed | flags["terminated"].unsqueeze(1).expand(*self._agents_shape, 1)
+        truncated = flags["truncated"].unsqueeze(1) & ~crashed
+        done = terminated | truncated
+        group = {
+            "observation": agents.get("observation"), "cost": agents.get("cost"),
+            "done": done, "terminated": terminated, "truncated": truncated, "mask": ~done,
+        }
         if not reset:
             group["reward"] = reward
         return TensorDict._new_unsafe(

@@ -411,9 +411,10 @@ def test_grid_image_gives_each_agent_and_goal_its_own_value():
 def test_vector_observation_is_ego_ordered_and_normalised():
     env = DiscreteSidewalkEnv(num_envs=1, seed=0, observation="vector")
     obs = env.reset()[AGENT_GROUP, "observation"][0]
-    assert obs.shape == (2, 10) and obs.min() >= 0 and obs.max() <= 1
-    torch.testing.assert_close(obs[0, :5], obs[1, 5:])
+    assert obs.shape == (2, 12) and obs.min() >= 0 and obs.max() <= 1
+    torch.testing.assert_close(obs[0, :6], obs[1, 6:])
     torch.testing.assert_close(obs[0, :2], torch.tensor([0.5, 0.0]))
+    torch.testing.assert_close(obs[0, 4:6], torch.tensor([1.0, 1.0]))  # present, active
 
 
 def test_render_returns_rgb_arrays():

@@ -78,9 +78,9 @@ def test_spaces_match_the_observations():
     assert image.observation_space == gymnasium.spaces.Box(0, 255, (1, 14, 30), np.uint8)
     assert image.reset(seed=0)[0].dtype == np.uint8
     vector = gymnasium.make(DISCRETE, observation="vector")
-    assert vector.observation_space.dtype == np.float32 and vector.observation_space.shape == (10,)
+    assert vector.observation_space.dtype == np.float32 and vector.observation_space.shape == (12,)
     continuous = gymnasium.make(CONTINUOUS)
-    assert continuous.observation_space.dtype == np.float32 and continuous.observation_space.shape == (12,)
+    assert continuous.observation_space.dtype == np.float32 and continuous.observation_space.shape == (16,)
     assert continuous.action_space.shape == (2,)
     assert gymnasium.make(DISCRETE, opponent="centralized").action_space == gymnasium.spaces.Discrete(16)
     assert gymnasium.make(CONTINUOUS, opponent="centralized").action_space.shape == (4,)

@@ -21,6 +21,7 @@ from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.envs.grid import DiscreteParams
 from sidewalk.experiment import Trial
 from sidewalk.views import SelfPlayView
+from sidewalk.envs.unicycle import OBSERVATION_FIELDS
 
 torch.set_num_threads(1)  # small networks on a 2-core machine: threads only contend
 
@@ -28,6 +29,7 @@ CONF = Path(__file__).resolve().parents[1] / "conf"
 LEARNERS = {"ippo": (IPPO, IPPOConfig), "mappo": (MAPPO, MAPPOConfig)}
 DOMAINS = ("continuous", "image", "vector")  # the grid's observation is an image or a vector
 OBS, ACTION, VALUE = ("agents", "observation"), ("agents", "action"), ("agents", "state_value")
+OBS_WIDTH = 2 * len(OBSERVATION_FIELDS)  # two agents
 TINY = {"frames_per_batch": 32, "epochs": 2, "minibatch_size": 16}
 
 
@@ -82,12 +84,12 @@ def test_value_targets_are_each_agents_own_discounted_return(name):
     algo, env = learner(name, "continuous", gamma=0.5, gae_lambda=1.0)
     for parameter in algo.critic.parameters():
         parameter.data.zero_()
-    obs = torch.randn(1, 3, 2, 12)
+    obs = torch.randn(1, 3, 2, OBS_WIDTH)
     reward = torch.tensor([[0.0, 1.0], [0.0, 0.0], [1.0, 0.0]]).reshape(1, 3, 2, 1)
     terminated = torch.tensor([False, False, True]).reshape(1, 3, 1, 1).expand(1, 3, 2, 1)
     batch = TensorDict(
         {"agents": TensorDict({"observation": obs}, batch_size=(1, 3, 2)),
-         "next": {"agents": TensorDict({"observation": torch.randn(1, 3, 2, 12), "reward": reward,
+         "next": {"agents": TensorDict({"observation": torch.randn(1, 3, 2, OBS_WIDTH), "reward": reward,
                                         "done": terminated.clone(), "terminated": terminated.clone()},
                                        batch_size=(1, 3, 2))}},
         batch_size=(1, 3),

@@ -20,6 +20,7 @@ from sidewalk.views import SelfPlayView
 ROOT = Path(__file__).resolve().parents[1]
 LEARNERS = ("iql", "vdn", "qmix")
 OBS, ACTION, REWARD = ("agents", "observation"), ("agents", "action"), ("agents", "reward")
+MASK = ("agents", "mask")
 GAMMA = 0.9
 
 
@@ -51,8 +52,10 @@ def test_vdn_mixes_by_summing_the_agents_chosen_q():
     team = algo.mixer(td).get("chosen_action_value")
     torch.testing.assert_close(team, chosen.sum(-2))
     values = torch.randn(64, algo.n_agents, 1)
-    out = algo.mixer(TensorDict({CHOSEN_ACTION_VALUE_KEY: values}, batch_size=[64]))
-    torch.testing.assert_close(out.get("chosen_action_value"), values.sum(-2))
+    in_play = torch.rand(64, algo.n_agents, 1) < 0.7
+    out = algo.mixer(TensorDict({CHOSEN_ACTION_VALUE_KEY: values, MASK: in_play}, batch_size=[64]))
+    # agents whose own episode ended add nothing to the team's value
+    torch.testing.assert_close(out.get("chosen_action_value"), (values * in_play).sum(-2))
 
 
 def test_qmix_is_monotone_in_each_agents_q():
@@ -64,15 +67,16 @@ def test_qmix_is_monotone_in_each_agents_q():
     n = 512
     state = torch.rand(n, 5 * algo.n_agents, generator=generator)
     values = torch.randn(n, algo.n_agents, 1, generator=generator) * 3
-    base = algo.mixer(TensorDict({CHOSEN_ACTION_VALUE_KEY: values, STATE_KEY: state}, batch_size=[n]))
+    in_play = torch.ones(n, algo.n_agents, 1, dtype=torch.bool)
+    base = algo.mixer(TensorDict({CHOSEN_ACTION_VALUE_KEY: values, MASK: in_play, STATE_KEY: state}, batch_size=[n]))
     for agent in range(algo.n_agents):
         raised = values.clone()
         raised[:, agent] += torch.rand(n, 1, generator=generator) * 2
-        out = algo.mixer(TensorDict({CHOSEN_ACTION_VALUE_KEY: raised, STATE_KEY: state}, batch_size=[n]))
+        out = algo.mixer(TensorDict({CHOSEN_ACTION_VALUE_KEY: raised, MASK: in_play, STATE_KEY: state}, batch_size=[n]))
         assert bool((out.get("chosen_action_value") >= base.get("chosen_action_value") - 1e-5).all())
     # The same as a derivative: dQ_tot/dQ_i >= 0 everywhere, and > 0 somewhere.
     values.requires_grad_(True)
-    team = algo.mixer(TensorDict({CHOSEN_ACTION_VALUE_KEY: values, STATE_KEY: state}, batch_size=[n]))
+    team = algo.mixer(TensorDict({CHOSEN_ACTION_VALUE_KEY: values, MASK: in_play, STATE_KEY: state}, batch_size=[n]))
     (grad,) = torch.autograd.grad(team.get("chosen_action_value").sum(), values)
     assert bool((grad >= 0).all()) and bool((grad > 0).any())
 
@@ -87,15 +91,18 @@ def test_qmix_state_is_the_scaled_true_world():
 
 
 def hand_made_transitions(algo, env) -> TensorDict:
-    """Two transitions from the start state: world 0 goes on (rewards -0.01 and 0.5), world 1 ends (terminated)."""
+    """Two transitions from the start state: in world 0 agent 0 goes on and agent 1 crashes (rewards -0.01 and -0.5;
+    agent 1 alone is terminated, its next state out of play), world 1 ends (every agent terminated)."""
     td = env.reset()[:2]
     td.set(ACTION, torch.tensor([[3, 2], [0, 1]]))  # RIGHT, LEFT: toward the goals; UP, DOWN
     nxt = env.step(env.reset().set(ACTION, torch.tensor([[3, 2]] * 4)))["next"][:2]
-    nxt.set(REWARD, torch.tensor([[[-0.01], [0.5]], [[0.25], [-0.5]]]))
+    nxt.set(REWARD, torch.tensor([[[-0.01], [-0.5]], [[0.25], [-0.5]]]))
     terminated = torch.tensor([[False], [True]])
+    agent_terminated = torch.tensor([[[False], [True]], [[True], [True]]])
     for key in ("done", "terminated"):
         nxt.set(key, terminated)
-        nxt.set(("agents", key), terminated.unsqueeze(1).expand(2, algo.n_agents, 1))
+        nxt.set(("agents", key), agent_terminated)
+    nxt.set(MASK, ~agent_terminated)
     td.set("next", nxt)
     with torch.no_grad():  # target networks unlike the online ones, so the double-DQN choice matters
         for name in ("target_value_network_params", "target_local_value_network_params", "target_mixer_network_params"):
@@ -124,13 +131,14 @@ def expected_targets(name: str, algo, td: TensorDict):
         greedy = q_values(algo, td.get(("next", *OBS)), online).argmax(-1, keepdim=True)
         bootstrap = q_next_target.gather(-1, greedy)
         reward, terminated = td.get(("next", *REWARD)), td.get(("next", "agents", "terminated"))
-        return chosen, reward + GAMMA * (~terminated) * bootstrap
+        return chosen, reward + GAMMA * (~terminated) * bootstrap  # each agent's own end stops its target
     reward = td.get(("next", *REWARD)).sum(-2)  # the team reward: the agents' rewards summed
     terminated = td.get(("next", "terminated"))
-    next_chosen = q_next_target.max(-1, keepdim=True).values
+    # agents out of play in the next state (agent 1 of world 0 crashed) add nothing to the team's next value
+    next_chosen = q_next_target.max(-1, keepdim=True).values * td.get(("next", *MASK))
     if name == "vdn":
         return chosen.sum(-2), reward + GAMMA * (~terminated) * next_chosen.sum(-2)
-    mixer = algo.mixer.module
+    mixer = algo.mixer.module.mixer
     state, next_state = algo.global_state(td.get("world")), algo.global_state(td.get(("next", "world")))
     with loss.target_mixer_network_params.to_module(algo.mixer):
         next_team = mixer(next_chosen, next_state)
@@ -142,13 +150,27 @@ def test_td_target_on_a_hand_made_transition(name):
     algo, env = make_learner(name, gamma=GAMMA, loss_function="l2")
     td = hand_made_transitions(algo, env)
     prediction, target = expected_targets(name, algo, td)
-    # Spelled out for world 1 (terminated): the target is the reward alone.
+    # Spelled out for world 1 (terminated) and, in IQL, agent 1's crash in world 0: the target is the reward alone.
     if name == "iql":
         torch.testing.assert_close(target[1], torch.tensor([[0.25], [-0.5]]))
+        torch.testing.assert_close(target[0, 1], torch.tensor([-0.5]))
     else:
         torch.testing.assert_close(target[1], torch.tensor([0.25 - 0.5]))
     stored = algo.transitions(td.unsqueeze(1))  # what the replay buffer would keep, (2,)
     torch.testing.assert_close(algo.loss(stored)["loss"], ((prediction - target) ** 2).mean())
+
+
+def test_iql_leaves_an_agents_steps_after_its_end_out_of_the_loss():
+    algo, env = make_learner("iql", gamma=GAMMA, loss_function="l2")
+    td = hand_made_transitions(algo, env)
+    prediction, target = expected_targets("iql", algo, td)
+    td.set(MASK, torch.tensor([[[True], [False]], [[True], [True]]]))  # agent 1 of world 0 had already ended
+    td.set(("next", *REWARD), td.get(("next", *REWARD)).index_put((torch.tensor(0), torch.tensor(1)), torch.tensor([9.0])))
+    in_play = td.get(MASK).squeeze(-1)
+    stored = algo.transitions(td.unsqueeze(1))
+    # the out-of-play step's reward (9, made up) moves nothing: the loss is the mean over the other three
+    expected = ((prediction - target) ** 2).squeeze(-1)[in_play].mean()
+    torch.testing.assert_close(algo.loss(stored)["loss"], expected)
 
 
 @pytest.mark.parametrize("name", LEARNERS)

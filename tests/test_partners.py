@@ -65,16 +65,22 @@ def runs(tmp_path_factory) -> dict[str, Path]:
 
 
 @pytest.mark.parametrize("core_cls", [DiscreteSidewalkEnv, ContinuousSidewalkEnv])
-def test_self_play_view_specs_and_world_done_per_agent(core_cls):
+def test_self_play_view_specs_and_each_agents_own_life_cycle(core_cls):
     view = SelfPlayView(core_cls(16, seed=3))
     check_env_specs(view)
     rollout = view.rollout(200, break_when_any_done=False)
     nxt = rollout.get("next")
-    world_done = nxt.get("done")  # (B, T, 1)
-    for key in ("done", "terminated", "truncated"):
-        per_agent = nxt.get(("agents", key))  # (B, T, N, 1)
-        assert torch.equal(per_agent, nxt.get(key).unsqueeze(-2).expand_as(per_agent))
-    assert world_done.any()
+    world = {key: nxt.get(key).unsqueeze(-2) for key in ("done", "terminated", "truncated")}  # (B, T, 1, 1)
+    info = nxt.get(("world", "info"))
+    crashed = info.get("collided_agent") | info.get("collided_wall")  # (B, T, N, 1)
+    agents = {key: nxt.get(("agents", key)) for key in ("done", "terminated", "truncated", "mask")}
+    assert torch.equal(agents["terminated"], crashed | world["terminated"].expand_as(crashed))
+    assert torch.equal(agents["truncated"], world["truncated"].expand_as(crashed) & ~crashed)
+    assert torch.equal(agents["done"], agents["terminated"] | agents["truncated"])
+    assert torch.equal(agents["mask"], ~agents["done"])
+    # the world is done exactly when every agent is; an agent ends alone when it crashes and its partner goes on
+    assert torch.equal(world["done"].squeeze(-1), agents["done"].all(-2))
+    assert world["done"].any() and (agents["done"].any(-2) & ~agents["done"].all(-2)).any()
     # each agent's reward is the core's, also in the world group
     assert torch.equal(nxt.get(("agents", "reward")), nxt.get(("world", "reward")))
 

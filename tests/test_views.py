@@ -352,7 +352,7 @@ def test_dqn_loss_runs_on_the_ego_view():
     from torchrl.objectives import DQNLoss, SoftUpdate
 
     env = EgoView(core("discrete", 4, observation="vector"))
-    net = MLP(in_features=10, out_features=4, num_cells=[16])
+    net = MLP(in_features=12, out_features=4, num_cells=[16])
     actor = QValueActor(net, in_keys=["observation"], spec=env.full_action_spec_unbatched["action"])
     with torch.no_grad():
         data = env.rollout(5, actor, break_when_any_done=False)
@@ -370,7 +370,7 @@ def test_ppo_loss_runs_on_the_continuous_ego_view():
 
     env = EgoView(core("continuous", 4, noise=0.5))
     spec = env.full_action_spec_unbatched["action"]
-    body = nn.Sequential(MLP(in_features=12, out_features=4, num_cells=[16]), NormalParamExtractor())
+    body = nn.Sequential(MLP(in_features=16, out_features=4, num_cells=[16]), NormalParamExtractor())
     actor = ProbabilisticActor(
         TensorDictModule(body, in_keys=["observation"], out_keys=["loc", "scale"]),
         in_keys=["loc", "scale"],
@@ -379,7 +379,7 @@ def test_ppo_loss_runs_on_the_continuous_ego_view():
         return_log_prob=True,
         spec=spec,
     )
-    critic = ValueOperator(MLP(in_features=12, out_features=1, num_cells=[16]), in_keys=["observation"])
+    critic = ValueOperator(MLP(in_features=16, out_features=1, num_cells=[16]), in_keys=["observation"])
     with torch.no_grad():
         data = env.rollout(6, actor, break_when_any_done=False)
         GAE(gamma=0.99, lmbda=0.95, value_network=critic)(data)

@@ -6,10 +6,13 @@ Each agent's policy and value network read that agent's observation only: ``Mult
 for vectors one ``RunningNorm`` over the per-agent observation, shared by both networks as in our single-agent PPO).
 ``share_params`` (default) gives every agent the same weights -- each observation is ego-centric, so one network can
 play any agent -- or one set per agent. ``ClipPPOLoss`` and ``GAE`` run over the agent-batched keys
-``("agents", ...)``: each agent's advantage comes from its own reward and value, the world's done cuts every agent's
-trajectory. The rest is our single-agent PPO (``sidewalk.algos.ppo``): a ``TanhNormal`` with a state-independent
-log-std starting at 0 (continuous) or a ``Categorical`` (grid), an output layer at 1 % of its default scale, the
-log-prob reference taken after the statistics moved, minibatches drawn by a generator the checkpoint keeps.
+``("agents", ...)``: each agent's advantage comes from its own reward and value and its own end (the view's
+``("agents", "terminated"|"done")``), and its steps after that end (``("agents", "mask")`` false) are left out of
+every loss (``loss_mask_key``), of the advantages' standardisation and of the observation statistics. The rest is
+our single-agent PPO (``sidewalk.algos.ppo``): a ``TanhNormal`` with a bounded mean (``mean_bound``) and a
+state-independent log-std starting at 0 (continuous) or a ``Categorical`` (grid), an output layer at 1 % of its
+default scale, the log-prob reference taken after the statistics moved, minibatches drawn by a generator the
+checkpoint keeps.
 ``sidewalk.algos.mappo`` is this learner with a centralised critic.
 """
 
@@ -25,13 +28,13 @@ from torch import nn
 from torchrl.data import Bounded, Categorical, Composite
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType
-from torchrl.modules import MultiAgentConvNet, MultiAgentMLP, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.modules import MultiAgentConvNet, MultiAgentMLP, ProbabilisticActor, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from sidewalk._checks import check_int, check_range
 from sidewalk.algos.base import FixedExplorationPolicy, MultiAgentAlgorithm, MultiAgentConfig
-from sidewalk.algos.networks import PAPER_CONV, RunningNorm, VectorEncoder, is_image_spec
+from sidewalk.algos.networks import PAPER_CONV, RunningNorm, VectorEncoder, is_image_spec, tanh_normal
 from sidewalk.algos.ppo import LOSS_LOGS, clipped_ppo_update
 from sidewalk.envs.base import AGENT_GROUP
 
@@ -60,6 +63,7 @@ class IPPOConfig(MultiAgentConfig):
     critic_coef: float = 0.5
     hidden: list[int] = field(default_factory=lambda: [64, 64])
     normalize_observations: bool = True  # vectors only, not images
+    mean_bound: float = 5.0  # TanhNormal's pre-squash mean within ±this (TorchRL's tanh_loc upscale); 0: unbounded
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -69,6 +73,7 @@ class IPPOConfig(MultiAgentConfig):
         check_int("algo.minibatch_size", self.minibatch_size, 1)
         check_range("algo.entropy_coef", self.entropy_coef, 0.0)
         check_range("algo.critic_coef", self.critic_coef, 0.0)
+        check_range("algo.mean_bound", self.mean_bound, 0.0)
         for width in self.hidden:
             check_int("algo.hidden[]", width, 1)
         if not isinstance(self.normalize_observations, bool):
@@ -121,11 +126,7 @@ def multi_agent_networks(
     if cfg.normalize_observations and not is_image_spec(observation_spec):
         norm = RunningNorm(observation_spec.shape[-1])
     if isinstance(action_spec, Bounded):
-        n_out, dist_keys = action_spec.shape[-1], ["loc", "scale"]
-        dist = {
-            "distribution_class": TanhNormal,
-            "distribution_kwargs": {"low": action_spec.space.low, "high": action_spec.space.high},
-        }
+        n_out, dist_keys, dist = action_spec.shape[-1], ["loc", "scale"], tanh_normal(action_spec, cfg.mean_bound)
     elif isinstance(action_spec, Categorical):
         n_out, dist_keys = action_spec.space.n, ["logits"]
         dist = {"distribution_class": torch.distributions.Categorical}
@@ -183,13 +184,15 @@ class IPPO(MultiAgentAlgorithm):
             "value": VALUE_KEY, "reward": self.REWARD_KEY, "done": self.DONE_KEY, "terminated": self.TERMINATED_KEY,
             "advantage": (AGENT_GROUP, "advantage"), "value_target": (AGENT_GROUP, "value_target"),
         }
-        self.advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=self.critic, average_gae=True)
+        # Advantages are standardised over the masked-in agent-steps by the update, not by GAE over every entry.
+        self.advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=self.critic, average_gae=False)
         self.advantage.set_keys(**value_keys)
         self.loss = ClipPPOLoss(
             self.actor, self.critic, clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coef,
             critic_coeff=cfg.critic_coef, normalize_advantage=False,
         )
         self.loss.set_keys(action=self.ACTION_KEY, sample_log_prob=LOG_PROB_KEY, **value_keys)
+        self.loss.loss_mask_key = self.MASK_KEY  # an agent's steps after its own end carry no learning signal
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr, foreach=True)
         self._generator = torch.Generator().manual_seed(0)
         self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
@@ -203,7 +206,8 @@ class IPPO(MultiAgentAlgorithm):
 
     def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
         return clipped_ppo_update(
-            self, batch, self.OBSERVATION_KEY, self.ACTION_KEY, LOG_PROB_KEY, (*LOSS_LOGS, "kl_approx", "clip_fraction")
+            self, batch, self.OBSERVATION_KEY, self.ACTION_KEY, LOG_PROB_KEY, (*LOSS_LOGS, "kl_approx", "clip_fraction"),
+            mask_key=self.MASK_KEY,
         )
 
     def modules(self) -> dict[str, torch.nn.Module]:

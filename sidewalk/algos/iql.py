@@ -150,9 +150,9 @@ class IQL(MultiAgentAlgorithm):
 
     Config = IQLConfig
     uses_replay_buffer = True
-    # What the replay buffer keeps of a transition: the agents' own rewards and the world's done per agent.
+    # What the replay buffer keeps of a transition: the agents' own rewards, ends and masks.
     TRANSITION_KEYS: ClassVar[tuple[NestedKey, ...]] = (
-        MultiAgentAlgorithm.OBSERVATION_KEY, MultiAgentAlgorithm.ACTION_KEY,
+        MultiAgentAlgorithm.OBSERVATION_KEY, MultiAgentAlgorithm.ACTION_KEY, MultiAgentAlgorithm.MASK_KEY,
         ("next", *MultiAgentAlgorithm.OBSERVATION_KEY), ("next", *MultiAgentAlgorithm.REWARD_KEY),
         ("next", *MultiAgentAlgorithm.DONE_KEY), ("next", *MultiAgentAlgorithm.TERMINATED_KEY),
     )
@@ -190,7 +190,9 @@ class IQL(MultiAgentAlgorithm):
         self.updates = 0
 
     def _make_loss(self, env: EnvBase, spec) -> LossModule:
-        """DQN's loss on every agent's own reward and done: a (batch, N) TD error, averaged."""
+        """DQN's loss on every agent's own reward and end: a (batch, N) TD error, averaged over the agent-steps that
+        carry learning signal (``("agents", "mask")``): an agent's own end stops its target, and its later steps,
+        whose actions move nothing, are left out."""
         cfg: IQLConfig = self.config
         loss = DQNLoss(
             self.actor, delay_value=True, double_dqn=cfg.double_dqn, action_space="categorical",
@@ -200,6 +202,7 @@ class IQL(MultiAgentAlgorithm):
             action_value=ACTION_VALUE_KEY, action=self.ACTION_KEY, value=CHOSEN_ACTION_VALUE_KEY,
             reward=self.REWARD_KEY, done=self.DONE_KEY, terminated=self.TERMINATED_KEY,
         )
+        loss.loss_mask_key = self.MASK_KEY
         return loss
 
     def transitions(self, batch: TensorDictBase) -> TensorDictBase:

@@ -3,6 +3,7 @@ networks of the on-policy learners (TRPO, PPO)."""
 
 from __future__ import annotations
 
+from typing import Any
 import torch
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn
@@ -128,23 +129,31 @@ def _trunk(encoder: nn.Module, norm: RunningNorm | None, out_features: int, hidd
     return nn.Sequential(*([encoder] if norm is None else [encoder, norm]), head)
 
 
+def tanh_normal(action_spec: Bounded, mean_bound: float = 0.0) -> dict[str, Any]:
+    """``ProbabilisticActor``'s distribution arguments for a ``TanhNormal`` within ``action_spec``. With ``mean_bound``
+    > 0 the pre-squash mean is ``mean_bound·tanh(loc / mean_bound)`` (TorchRL's ``tanh_loc``): an unbounded mean can
+    run off to where every sample is squashed onto the bound and exploration stops (docs/multiagent.md)."""
+    kwargs: dict[str, Any] = {"low": action_spec.space.low, "high": action_spec.space.high}
+    if mean_bound > 0:
+        kwargs.update(tanh_loc=True, upscale=float(mean_bound))
+    return {"distribution_class": TanhNormal, "distribution_kwargs": kwargs}
+
+
 def on_policy_networks(
-    observation_spec, action_spec, policy_hidden: list[int], value_hidden: list[int], normalize_observations: bool
+    observation_spec, action_spec, policy_hidden: list[int], value_hidden: list[int], normalize_observations: bool,
+    mean_bound: float = 0.0,
 ) -> tuple[ProbabilisticActor, ValueOperator, RunningNorm | None]:
     """The policy and value networks of OpenAI baselines' TRPO/PPO (and CleanRL's continuous PPO), from unbatched
     specs: ``observation`` (a vector, standardised by one ``RunningNorm`` both networks share, or a uint8 image
     through the paper's conv encoder) → tanh MLPs. The policy samples ``action`` from a ``TanhNormal`` within a
     ``Bounded`` spec, with a learned state-independent log-std (0 at the start), or from a ``Categorical`` /
     ``OneHotCategorical`` over discrete actions; its output layer starts at 1 % of its default scale, so the first
-    policy is centred / near uniform. The value network writes ``state_value``. Returns (actor, value, norm)."""
+    policy is centred / near uniform; ``mean_bound``: see ``tanh_normal``. The value network writes
+    ``state_value``. Returns (actor, value, norm)."""
     image = is_image_spec(observation_spec)
     norm = RunningNorm(observation_spec.shape[-1]) if normalize_observations and not image else None
     if isinstance(action_spec, Bounded):
-        n_out, dist_keys = action_spec.shape[-1], ["loc", "scale"]
-        dist = {
-            "distribution_class": TanhNormal,
-            "distribution_kwargs": {"low": action_spec.space.low, "high": action_spec.space.high},
-        }
+        n_out, dist_keys, dist = action_spec.shape[-1], ["loc", "scale"], tanh_normal(action_spec, mean_bound)
     elif isinstance(action_spec, (Categorical, OneHot)):
         n_out, dist_keys = action_spec.space.n, ["logits"]
         dist = {"distribution_class": OneHotCategorical if isinstance(action_spec, OneHot) else torch.distributions.Categorical}

@@ -41,6 +41,7 @@ class PPOConfig(AlgoConfig):
     critic_coef: float = 0.5
     hidden: list[int] = field(default_factory=lambda: [64, 64])
     normalize_observations: bool = True  # CleanRL: gym's NormalizeObservation; vectors only, not images
+    mean_bound: float = 5.0  # TanhNormal's pre-squash mean within ±this (TorchRL's tanh_loc upscale); 0: unbounded
     default_num_envs: int = 128  # 16 steps of 128 worlds an iteration, as TRPO
 
     def __post_init__(self) -> None:
@@ -51,6 +52,7 @@ class PPOConfig(AlgoConfig):
         check_int("algo.minibatch_size", self.minibatch_size, 1)
         check_range("algo.entropy_coef", self.entropy_coef, 0.0)
         check_range("algo.critic_coef", self.critic_coef, 0.0)
+        check_range("algo.mean_bound", self.mean_bound, 0.0)
         for width in self.hidden:
             check_int("algo.hidden[]", width, 1)
         if not isinstance(self.normalize_observations, bool):
@@ -67,19 +69,32 @@ def clipped_ppo_update(
     action_key: NestedKey,
     log_prob_key: NestedKey,
     log_keys: tuple[str, ...],
+    mask_key: NestedKey | None = None,
 ) -> dict[str, float]:
     """One PPO update of ``algo`` (its ``advantage``, ``obs_norm``, ``actor``, ``loss``, ``optimizer``, minibatch
     ``_generator`` and ``config``) on a collected (worlds, time) batch: advantages, the observation statistics, the
     ratio's reference log-prob, then ``epochs`` passes of shuffled minibatches; returns the mean of each of
-    ``log_keys`` the loss reports. Our PPO and the multi-agent IPPO/MAPPO share it, with their own keys."""
+    ``log_keys`` the loss reports. Our PPO and the multi-agent IPPO/MAPPO share it, with their own keys.
+
+    With ``mask_key`` (the multi-agent ``("agents", "mask")``, bool (..., N, 1)), the advantages are standardised and
+    the observation statistics gathered over the masked-in agent-steps only, and ``algo.loss`` is expected to read
+    the same mask (``loss_mask_key``); without it the advantage estimator standardises (``average_gae``)."""
     cfg = algo.config
     algo.frames_seen += batch.numel()
     batch = batch.to(algo.device)
     with torch.no_grad():
         algo.advantage(batch)  # GAE needs the (worlds, time) layout: time is the last batch dimension
+        if mask_key is not None:
+            mask = batch.get(mask_key)
+            advantage = batch.get(algo.advantage.tensor_keys.advantage)
+            kept = advantage[mask.expand_as(advantage)]
+            batch.set(algo.advantage.tensor_keys.advantage, (advantage - kept.mean()) / kept.std().clamp_min(1e-6))
     flat = batch.reshape(-1)
     if algo.obs_norm is not None:
-        algo.obs_norm.update(flat.get(observation_key))
+        observation = flat.get(observation_key)
+        if mask_key is not None:
+            observation = observation[flat.get(mask_key).squeeze(-1)]
+        algo.obs_norm.update(observation)
     with torch.no_grad():
         # The ratio's reference: the policy as it is now, after the statistics moved (TRPO's snapshot does the
         # same), so the first minibatch starts at ratio 1.
@@ -110,7 +125,7 @@ class PPO(Algorithm):
     def _build(self, env: EnvBase) -> None:
         cfg: PPOConfig = self.config
         actor, critic, self.obs_norm = on_policy_networks(
-            self.observation_spec, self.action_spec, cfg.hidden, cfg.hidden, cfg.normalize_observations
+            self.observation_spec, self.action_spec, cfg.hidden, cfg.hidden, cfg.normalize_observations, cfg.mean_bound
         )
         self.actor, self.critic = actor.to(self.device), critic.to(self.device)
         self.advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=self.critic, average_gae=True)

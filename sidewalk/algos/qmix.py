@@ -16,7 +16,7 @@ from torchrl.modules import QMixer
 
 from sidewalk._checks import check_int
 from sidewalk.algos.iql import CHOSEN_ACTION_VALUE_KEY
-from sidewalk.algos.vdn import TEAM_VALUE_KEY, VDN, VDNConfig
+from sidewalk.algos.vdn import TEAM_VALUE_KEY, VDN, InPlayMixer, VDNConfig
 from sidewalk.views import WORLD
 
 STATE_KEY = "state"  # the mixer's global state (batch, 5·N), stored beside each transition
@@ -54,7 +54,9 @@ class QMIX(VDN):
             state_shape=(5 * self.n_agents,), mixing_embed_dim=cfg.mixing_embed_dim, n_agents=self.n_agents,
             device=self.device,
         )
-        return TensorDictModule(mixer, in_keys=[CHOSEN_ACTION_VALUE_KEY, STATE_KEY], out_keys=[TEAM_VALUE_KEY])
+        return TensorDictModule(
+            InPlayMixer(mixer), in_keys=[CHOSEN_ACTION_VALUE_KEY, self.MASK_KEY, STATE_KEY], out_keys=[TEAM_VALUE_KEY]
+        )
 
     def global_state(self, world: TensorDictBase) -> torch.Tensor:
         """The mixer's state (..., 5·N) from a ``"world"`` group (..., N): (row, col, goal row, goal col,

@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
@@ -17,6 +18,19 @@ from torchrl.objectives import LossModule, QMixerLoss
 from sidewalk.algos.iql import CHOSEN_ACTION_VALUE_KEY, IQL, IQLConfig
 
 TEAM_VALUE_KEY = "chosen_action_value"  # the mixer's output, Q_tot (batch, 1)
+
+
+class InPlayMixer(torch.nn.Module):
+    """A mixer of only the agents still in play: the chosen Q-values of agents whose own episode ended (the view's
+    ``("agents", "mask")`` false, in the state itself and in the next one for the target) enter as 0, so an agent
+    that crashed adds nothing to Q_tot and its meaningless actions take no part in the team's greedy target."""
+
+    def __init__(self, mixer: torch.nn.Module) -> None:
+        super().__init__()
+        self.mixer = mixer
+
+    def forward(self, chosen: torch.Tensor, mask: torch.Tensor, *state: torch.Tensor) -> torch.Tensor:
+        return self.mixer(torch.where(mask, chosen, torch.zeros_like(chosen)), *state)
 
 
 @dataclass
@@ -37,19 +51,21 @@ class VDNConfig(IQLConfig):
 
 
 class VDN(IQL):
-    """Q_tot = Σ_i Q_i(o_i, a_i), trained on the team reward: the sum of the agents' rewards (the centralized
-    learner's team reward, so the two learners estimate the same return), with the world's done."""
+    """Q_tot = Σ_i Q_i(o_i, a_i) over the agents still in play (``InPlayMixer``), trained on the team reward: the sum
+    of the agents' rewards (the centralized learner's team reward, so the two learners estimate the same return),
+    with the world's done."""
 
     Config = VDNConfig
     # The agents' rewards are summed into the root ("next", "reward") when the buffer is filled (``transitions``).
     TRANSITION_KEYS: ClassVar[tuple[NestedKey, ...]] = (
-        IQL.OBSERVATION_KEY, IQL.ACTION_KEY, ("next", *IQL.OBSERVATION_KEY), ("next", "done"), ("next", "terminated"),
+        IQL.OBSERVATION_KEY, IQL.ACTION_KEY, IQL.MASK_KEY, ("next", *IQL.OBSERVATION_KEY), ("next", *IQL.MASK_KEY),
+        ("next", "done"), ("next", "terminated"),
     )
 
     def _make_mixer(self, env: EnvBase) -> TensorDictModule:
         return TensorDictModule(
-            VDNMixer(n_agents=self.n_agents, device=self.device),
-            in_keys=[CHOSEN_ACTION_VALUE_KEY], out_keys=[TEAM_VALUE_KEY],
+            InPlayMixer(VDNMixer(n_agents=self.n_agents, device=self.device)),
+            in_keys=[CHOSEN_ACTION_VALUE_KEY, self.MASK_KEY], out_keys=[TEAM_VALUE_KEY],
         )
 
     def _make_loss(self, env: EnvBase, spec) -> LossModule:

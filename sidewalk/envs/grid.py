@@ -19,6 +19,9 @@ from sidewalk.envs.rewards import RewardParams
 ACTIONS = ("UP", "DOWN", "LEFT", "RIGHT")
 MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))
 OBSERVATIONS = ("image", "vector")
+# What observation="vector" lists of every agent, cells scaled to [0, 1]: present (it occupies a cell: moving or
+# parked at its goal) and active (it still moves: not arrived, not crashed).
+VECTOR_FIELDS = ("row", "col", "goal_row", "goal_col", "present", "active")
 
 # Grey levels of the image observation. Roles are ego-centric: in agent i's image, agent i is SELF, agent
 # i+1 (mod N) the first OTHER, and so on, so each agent and each goal has its own fixed value in every image.
@@ -104,8 +107,8 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
 
     Per agent: ``action`` is Categorical(4) (UP, DOWN, LEFT, RIGHT); ``observation`` is the ego-centric grey
     image (uint8, (1, rows·k, cols·k)) or, with ``observation="vector"``, the positions of every agent and goal
-    in ego order, normalised to [0, 1], plus a presence flag per agent (5·N floats); ``state`` and ``goal`` are
-    (row, col) int64.
+    in ego order, normalised to [0, 1], plus a presence and an active flag per agent (``VECTOR_FIELDS``, 6·N floats;
+    a crashed agent removed from the world is all zeros); ``state`` and ``goal`` are (row, col) int64.
 
     With probability ``noise`` an agent's action is replaced by a uniformly random one. Collisions: moving off
     the grid or into an interior wall; two agents ending in one cell; two agents swapping cells. An agent at its
@@ -213,7 +216,7 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         if self.params.observation == "image":
             observation = UniformBounded(0, 255, shape=(*agents, *self._image_shape), dtype=torch.uint8, device=device)
         else:
-            observation = Bounded(0.0, 1.0, shape=(*agents, 5 * n), dtype=torch.float32, device=device)
+            observation = Bounded(0.0, 1.0, shape=(*agents, len(VECTOR_FIELDS) * n), dtype=torch.float32, device=device)
         high = torch.tensor([self.rows - 1, self.cols - 1], device=device).expand(*agents, 2)
         cell = Bounded(torch.zeros_like(high), high, shape=(*agents, 2), dtype=torch.long, device=device)
         specs = {"observation": observation, "state": cell, "goal": cell.clone()}
@@ -338,14 +341,14 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
 
     def _observe(self, worlds: torch.Tensor | None) -> dict[str, torch.Tensor]:
         # Grid observations are a deterministic function of the state: a reset observes its worlds only.
-        state = (self._row, self._col, self._goal_row, self._goal_col, self._present)
+        state = (self._row, self._col, self._goal_row, self._goal_col, self._present, self._active)
         if worlds is not None:
             state = tuple(tensor.index_select(0, worlds) for tensor in state)
-        row, col, goal_row, goal_col, present = state
+        row, col, goal_row, goal_col, present, active = state
         return {
             "observation": (
                 self._image(row, col, present, worlds) if self.params.observation == "image"
-                else self._vector(row, col, goal_row, goal_col, present)
+                else self._vector(row, col, goal_row, goal_col, present, active)
             ),
             "state": torch.stack([row, col], dim=-1),
             "goal": torch.stack([goal_row, goal_col], dim=-1),
@@ -365,16 +368,20 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         return canvas[..., : self._n_pixels].view(batch, n, *self._image_shape)
 
     def _vector(
-        self, row: torch.Tensor, col: torch.Tensor, goal_row: torch.Tensor, goal_col: torch.Tensor, present: torch.Tensor
+        self, row: torch.Tensor, col: torch.Tensor, goal_row: torch.Tensor, goal_col: torch.Tensor, present: torch.Tensor,
+        active: torch.Tensor,
     ) -> torch.Tensor:
         scale_row, scale_col = self._vector_scale.tolist()
+        shown = present.to(torch.float32)  # a crashed agent removed from the world is all zeros: no obstacle
         per_agent = torch.stack(
-            [row / scale_row, col / scale_col, goal_row / scale_row, goal_col / scale_col, present.to(torch.float32)],
+            [row * shown / scale_row, col * shown / scale_col, goal_row * shown / scale_row,
+             goal_col * shown / scale_col, shown, active.to(torch.float32)],
             dim=-1,
         )
-        out = new_output((row.shape[0], self.n_agents * self.n_agents, 5), torch.float32, self.device)
+        width = len(VECTOR_FIELDS)
+        out = new_output((row.shape[0], self.n_agents * self.n_agents, width), torch.float32, self.device)
         torch.index_select(per_agent, 1, self._ego_order.view(-1), out=out)
-        return out.view(row.shape[0], self.n_agents, 5 * self.n_agents)
+        return out.view(row.shape[0], self.n_agents, width * self.n_agents)
 
     def render(self, env_index: int = 0, pixels_per_cell: int = 24) -> np.ndarray:
         """The world ``env_index`` as an RGB uint8 array (rows·px, cols·px, 3): agents as discs, goals as squares."""

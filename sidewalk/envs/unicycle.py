@@ -16,7 +16,9 @@ from sidewalk.envs.layouts import PlaneLayout, RandomPlaneLayout, plane_layout
 from sidewalk.envs.rewards import RewardParams
 
 STATE_FIELDS = ("x", "y", "v", "theta")
-OBSERVATION_FIELDS = ("x", "y", "v", "theta", "goal_x", "goal_y")
+OBSERVATION_FIELDS = ("x", "y", "v", "theta", "goal_x", "goal_y", "active", "present")
+# The fields that carry observation noise: the flags say exactly who is still there.
+NOISY_FIELDS = 6
 
 
 @dataclass(frozen=True)
@@ -76,8 +78,10 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
     """The continuous Sidewalk as a batched multi-agent TorchRL env.
 
     Per agent: ``action`` is (acceleration m/s², turn rad) within ±(max_accel_mps2, max_turn_rad); ``state`` is
-    (x, y, v, θ) with θ in [-π, π); ``goal`` is (x, y); ``observation`` lists (x, y, v, θ, goal_x, goal_y) of
-    every agent in ego order (self first), plus uniform ±``noise``.
+    (x, y, v, θ) with θ in [-π, π); ``goal`` is (x, y); ``observation`` lists (x, y, v, θ, goal_x, goal_y, active,
+    present) of every agent in ego order (self first), the first six plus uniform ±``noise``: ``active`` is 1 while
+    the agent still moves (not arrived, not crashed), ``present`` while it occupies space (moving or parked at its
+    goal); a crashed agent removed from the world is all zeros, so no one sees it as an obstacle.
 
     One step: action noise, then the bounds; θ += turn; v = clip(v + a·dt, ±max_speed); (x, y) += v·(cos θ,
     sin θ)·dt. Collisions: a disc leaving the rectangle or touching an interior box at the end of the step; two
@@ -368,21 +372,23 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         return (gap_sq < self.params.agent_radius_m**2).any(-1)
 
     def _observe(self, worlds: torch.Tensor | None) -> dict[str, torch.Tensor]:
-        fields = (self._x, self._y, self._speed, self._heading, self._goal_x, self._goal_y)
+        fields = (self._x, self._y, self._speed, self._heading, self._goal_x, self._goal_y, self._active, self._present)
         if worlds is not None:
             fields = tuple(tensor.index_select(0, worlds) for tensor in fields)
         state = torch.stack(fields[:4], dim=-1)
-        goal = torch.stack(fields[4:], dim=-1)
-        per_agent = torch.cat([state, goal], dim=-1)
+        goal = torch.stack(fields[4:6], dim=-1)
+        present = fields[7].unsqueeze(-1)
+        flags = torch.stack(fields[6:], dim=-1).to(torch.float32)
+        per_agent = torch.cat([state * present, goal * present, flags], dim=-1)
         n, width = self.n_agents, len(OBSERVATION_FIELDS)
         observation = new_output((len(per_agent), n * n, width), torch.float32, self.device)
         torch.index_select(per_agent, 1, self._ego_order.view(-1), out=observation)
-        observation = observation.view(len(per_agent), n, n * width)
         if self.params.noise > 0.0:
             # A reset draws the noise of every world and keeps its own worlds' (the others keep what they were
             # shown), so the generator's stream does not depend on which worlds reset.
-            observation.add_(self._uniform_noise(torch.Size((self.num_envs, n, n * width)), worlds))
-        return {"observation": observation, "state": state, "goal": goal}
+            noise = self._uniform_noise(torch.Size((self.num_envs, n, n * NOISY_FIELDS)), worlds)
+            observation[..., :NOISY_FIELDS].add_(noise.view(len(per_agent), n * n, NOISY_FIELDS))
+        return {"observation": observation.view(len(per_agent), n, n * width), "state": state, "goal": goal}
 
     def render(self, env_index: int = 0, pixels_per_m: int = 60) -> np.ndarray:
         """The world ``env_index`` as an RGB uint8 array: agents as discs with a heading tick, goals as stars."""

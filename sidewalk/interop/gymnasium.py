@@ -111,6 +111,8 @@ def _continuous_observation_bounds(core: SidewalkEnvBase) -> tuple[np.ndarray, n
         "theta": (min(-math.pi, *start_headings), max(math.pi, *start_headings)),
         "goal_x": (0.0, length),
         "goal_y": (0.0, width),
+        "active": (0.0, 1.0),
+        "present": (0.0, 1.0),
     }
     # A field added to the observation later gets no bound rather than a wrong one.
     low = [per_field.get(name, (-math.inf, math.inf))[0] for name in OBSERVATION_FIELDS] * core.n_agents
