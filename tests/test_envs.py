@@ -177,6 +177,22 @@ def test_scripted_continuous_episode_returns(alpha):
     assert rollout["done"][:, -1].all() and not rollout["done"][:, :-1].any()
 
 
+def test_continuous_progress_shaping_pays_each_metre_the_distance_to_goal_shrank():
+    c_progress = 0.1
+    env = ContinuousSidewalkEnv(
+        num_envs=1, seed=0, layout=straight_lanes_plane(), rewards={"alpha": 0.0, "c_progress": c_progress}
+    )
+    remaining = reference_walk(env.params, 9.0)
+    rollout = play(env, [torch.tensor([[1.0, 0.0], [1.0, 0.0]])] * len(remaining))
+    reward = rollout[AGENT_GROUP, "reward"][0, :, 0, 0]
+    before = [9.0, *remaining[:-1]]
+    expected = [
+        SPEC.c_step + SPEC.c_potential * d * d + c_progress * (b - d) + (SPEC.c_goal if step == len(remaining) - 1 else 0)
+        for step, (b, d) in enumerate(zip(before, remaining))
+    ]
+    torch.testing.assert_close(reward, torch.tensor(expected), atol=1e-5, rtol=0)
+
+
 def test_crashed_agent_is_not_paid_for_the_others_arrival_in_the_grid():
     # Agent 0 steps off the top of the grid in the very step agent 1 steps onto its goal; SPEC §1 (2026-11-23):
     # the cooperative term goes only to agents that have not crashed, so alpha changes nothing for agent 0.

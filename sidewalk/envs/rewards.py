@@ -16,10 +16,11 @@ class RewardParams:
     ``alpha`` is the cooperation weight of eq. 2 applied to the other agents' goal reward: 1.0 is the paper's
     *explicit* cooperative reward (+1 each when both arrive), 0.0 the *implicit* one. ``c_center`` shapes the grid
     (per cell of distance from the central axis), ``c_potential`` the continuous world (per m² of squared
-    distance to the agent's own goal); ``c_progress`` (ours, 0 by default, for the grid scenarios whose walls make
-random exploration lethal) pays per cell the shortest path around the walls to the agent's own goal shrank in the
-step, a potential-based term (Ng et al. 1999: it leaves the optimal policies of the undiscounted game as they
-are). ``shaped_agents`` lists the agents that receive shaping; ``None`` means
+    distance to the agent's own goal); ``c_progress`` (ours, 0 by default) pays for the step's progress toward the
+agent's own goal -- in the grid per cell the shortest path around the walls shrank (for the scenarios whose walls
+make random exploration lethal), in the continuous world per metre the straight-line distance shrank (a dense
+signal like VMAS give_way's, for self-play) -- a potential-based term (Ng et al. 1999: it leaves the optimal
+policies of the undiscounted game as they are). ``shaped_agents`` lists the agents that receive shaping; ``None`` means
     all of them (the paper's centralized continuous run shaped agent 0 only: ``(0,)``).
     """
 
@@ -29,7 +30,7 @@ are). ``shaped_agents`` lists the agents that receive shaping; ``None`` means
     alpha: float = 1.0
     c_center: float = -0.01
     c_potential: float = -0.0001
-    c_progress: float = 0.0  # grid: per cell of shortest-path progress toward the own goal (0: the paper's reward)
+    c_progress: float = 0.0  # per cell (grid) / metre (continuous) of progress toward the own goal (0: the paper's)
     shaped_agents: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:

@@ -91,7 +91,7 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
     """
 
     Params = ContinuousParams
-    shaping_weight_name = "c_potential"
+    shaping_weight_name = None  # two shaping terms, weighed in _advance: c_potential and c_progress
 
     @staticmethod
     def layout_for(p: ContinuousParams) -> PlaneLayout | RandomPlaneLayout:
@@ -127,6 +127,7 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
             torch.zeros(shape, device=device) for _ in range(6)
         )
         self._present = torch.zeros(shape, dtype=torch.bool, device=device)
+        self._c_potential, self._c_progress = float(p.rewards.c_potential), float(p.rewards.c_progress)
 
     def _agent_specs(self) -> tuple[dict[str, Any], Any]:
         agents, device, n = (*self.batch_size, self.n_agents), self.device, self.n_agents
@@ -210,11 +211,15 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         hit_agent = mover & touching.any(1).t()
         to_goal_sq = (self._goal_x - x).square() + (self._goal_y - y).square()
         reached = mover & ~hit_agent & (to_goal_sq <= p.goal_radius_m**2)
+        shaping = self._c_potential * to_goal_sq
+        if self._c_progress != 0.0:
+            before = ((self._goal_x - self._x).square() + (self._goal_y - self._y).square()).sqrt()
+            shaping = shaping + self._c_progress * (before - to_goal_sq.sqrt())
 
         self._x, self._y, self._heading = x, y, heading
         self._speed = speed.masked_fill(reached | hit_wall | hit_agent, 0.0)
         self._present = present & ~hit_agent if p.remove_crashed else present
-        return reached, hit_wall, hit_agent, to_goal_sq
+        return reached, hit_wall, hit_agent, shaping
 
     def _swept_contact(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         """Bool (N, N, B): agents i and j come closer than two radii at some time of the step that moves every
@@ -387,7 +392,8 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
             # A reset draws the noise of every world and keeps its own worlds' (the others keep what they were
             # shown), so the generator's stream does not depend on which worlds reset.
             noise = self._uniform_noise(torch.Size((self.num_envs, n, n * NOISY_FIELDS)), worlds)
-            observation[..., :NOISY_FIELDS].add_(noise.view(len(per_agent), n * n, NOISY_FIELDS))
+            shown = observation[..., -1:]  # present: a removed agent stays all zeros
+            observation[..., :NOISY_FIELDS].add_(noise.view(len(per_agent), n * n, NOISY_FIELDS) * shown)
         return {"observation": observation.view(len(per_agent), n, n * width), "state": state, "goal": goal}
 
     def render(self, env_index: int = 0, pixels_per_m: int = 60) -> np.ndarray:
