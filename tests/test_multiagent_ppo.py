@@ -100,6 +100,31 @@ def test_value_targets_are_each_agents_own_discounted_return(name):
     torch.testing.assert_close(batch.get(("agents", "value_target")), expected)
 
 
+def test_ippo_learns_nothing_from_an_agents_steps_after_its_own_end():
+    # Steps an agent takes after its own end (("agents", "mask") false) are out of every loss and statistic: making
+    # up their rewards and observations leaves the update exactly as it was. (MAPPO's critic reads every agent's
+    # observation for the others' values, so this holds for IPPO's own-observation critic.)
+    algo, env = learner("ippo", "continuous", num_envs=16, frames_per_batch=1024, epochs=2, minibatch_size=256)
+    collector = Collector(env, algo.collection_policy(), frames_per_batch=1024, total_frames=1024,
+                          auto_register_policy_transforms=False)
+    batch = next(iter(collector))
+    collector.shutdown()
+    out_of_play = ~batch.get(("agents", "mask"))
+    assert out_of_play.any() and not out_of_play.all()
+    made_up = batch.clone()
+    noise = torch.randn_like(made_up.get(OBS)) * 10
+    made_up.set(OBS, torch.where(out_of_play, noise, made_up.get(OBS)))
+    made_up.set(("next", *OBS), torch.where(out_of_play, noise, made_up.get(("next", *OBS))))
+    reward = made_up.get(("next", "agents", "reward"))
+    made_up.set(("next", "agents", "reward"), torch.where(out_of_play, torch.full_like(reward, 7.0), reward))
+    twin, _ = learner("ippo", "continuous", num_envs=16, frames_per_batch=1024, epochs=2, minibatch_size=256)
+    algo.update(batch)
+    twin.update(made_up)
+    for mine, theirs in zip(algo.loss.parameters(), twin.loss.parameters()):
+        torch.testing.assert_close(mine, theirs)
+    torch.testing.assert_close(algo.obs_norm.mean, twin.obs_norm.mean)
+
+
 @pytest.mark.parametrize("domain", ["continuous", "image"])
 @pytest.mark.parametrize("name", LEARNERS)
 def test_updates_on_a_fixed_batch_lower_the_losses(name, domain):

@@ -88,7 +88,8 @@ def clipped_ppo_update(
             mask = batch.get(mask_key)
             advantage = batch.get(algo.advantage.tensor_keys.advantage)
             kept = advantage[mask.expand_as(advantage)]
-            batch.set(algo.advantage.tensor_keys.advantage, (advantage - kept.mean()) / kept.std().clamp_min(1e-6))
+            if kept.numel() > 1:
+                batch.set(algo.advantage.tensor_keys.advantage, (advantage - kept.mean()) / kept.std().clamp_min(1e-6))
     flat = batch.reshape(-1)
     if algo.obs_norm is not None:
         observation = flat.get(observation_key)
