@@ -111,6 +111,7 @@ class ExperimentSchema:
     keep_checkpoint: str = "final"
     torch_threads: int = 1
     shield: bool = False
+    other_play: bool = False
 
 
 def with_schema_defaults(cfg: DictConfig) -> DictConfig:
@@ -163,6 +164,7 @@ class Experiment:
     keep_checkpoint: str
     torch_threads: int
     shield: bool = False  # the safety shield guards the learner's actions (training and evaluation)
+    other_play: bool = False  # self-play partners act through a random mirror of the game (sidewalk.symmetry)
 
 
 def _field_names(schema: type) -> list[str]:
@@ -271,6 +273,12 @@ def validate(cfg: DictConfig) -> Experiment:
         opponent_params = {"path": str(cfg.opponent.path), "sample": bool(cfg.opponent.get("sample", False))}
     elif cfg.opponent.get("path", ""):
         raise ValueError(f"opponent.path={cfg.opponent.path!r} applies only to opponent=policy, not opponent={opponent}")
+    if cfg.other_play:
+        if opponent != "self":
+            raise ValueError(f"other_play=true trains self-play partners: use opponent=self, not opponent={opponent}")
+        from sidewalk.symmetry import check_mirror_symmetric
+
+        check_mirror_symmetric(env_cls.layout_for(env_params))
     algo_cls = ALGORITHMS[algo_name].Config
     algo = OmegaConf.to_object(cfg.algo) if OmegaConf.get_type(cfg.algo) is algo_cls else algo_cls(**cfg.algo)
     logger = OmegaConf.to_object(cfg.logger) if OmegaConf.get_type(cfg.logger) is LoggerSchema else LoggerSchema(**cfg.logger)
@@ -294,4 +302,5 @@ def validate(cfg: DictConfig) -> Experiment:
         keep_checkpoint=str(cfg.keep_checkpoint),
         torch_threads=cfg.torch_threads,
         shield=bool(cfg.shield),
+        other_play=bool(cfg.other_play),
     )

@@ -72,7 +72,7 @@ def make_view(experiment: Experiment, num_envs: int, seed: int) -> EnvBase:
     if experiment.opponent == "centralized":
         return CentralizedView(core, shield=experiment.shield)
     if experiment.opponent == "self":
-        return SelfPlayView(core, shield=experiment.shield)
+        return SelfPlayView(core, shield=experiment.shield, other_play=experiment.other_play)
     return EgoView(
         core,
         opponent=experiment.opponent,

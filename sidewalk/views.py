@@ -47,6 +47,7 @@ from torchrl.envs import EnvBase
 from sidewalk._checks import check_choice, check_int
 from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, SidewalkEnvBase, swap_in_reset
 from sidewalk.opponents.base import Opponent, env_domain
+from sidewalk.symmetry import check_mirror_symmetric, mirror_action, mirror_observation
 
 VIEW_KINDS = ("ego", "centralized", "self", "all")
 WORLD = "world"
@@ -490,10 +491,23 @@ class SelfPlayView(_SidewalkView):
 
     The root ``done``/``terminated``/``truncated`` are the world's: every agent done, or the time limit. An agent's
     own outcome flags are in ``("world", "info")``; whether it still moves is in its observation (``active``).
+
+    ``other_play=True`` (Other-Play, Hu et al. 2020): at every reset of a world each agent but agent 0 plays, with
+    probability 1/2 drawn from the env's generator, through the mirror across the centre line
+    (``sidewalk.symmetry``): it sees its observation mirrored and its action is mirrored back before the world steps.
+    Its data stays in its own frame, so the learner needs no change, and the policy cannot rely on a convention that
+    the mirror breaks. Refused for layouts the mirror does not map onto themselves.
     """
 
-    def __init__(self, env: SidewalkEnvBase, shield: bool = False) -> None:
+    def __init__(self, env: SidewalkEnvBase, shield: bool = False, other_play: bool = False) -> None:
         super().__init__(env, shield=shield)
+        if not isinstance(other_play, bool):
+            raise TypeError(f"other_play={other_play!r} must be a bool")
+        if other_play:
+            check_mirror_symmetric(env.layout)
+        self.other_play = other_play
+        # (B, N) bool: the agent plays this episode through the mirror; agent 0 never does.
+        self._mirrored = torch.zeros(self._agents_shape, dtype=torch.bool, device=self.device)
         self._view_action_key = (AGENT_GROUP, "action")
         self._make_spec()
 
@@ -529,8 +543,25 @@ class SelfPlayView(_SidewalkView):
             device=self.device,
         )
 
+    def _on_reset(self, rows: torch.Tensor) -> None:
+        if self.other_play:
+            # Drawn for every world and kept for the reset ones: the stream does not depend on which worlds reset.
+            draw = torch.rand(self._agents_shape, generator=self.generator, device=self.device) < 0.5
+            draw[:, 0] = False
+            self._mirrored = torch.where(rows.unsqueeze(-1), draw, self._mirrored)
+
     def _joint_action(self, action: torch.Tensor) -> torch.Tensor:
-        return action
+        if not self.other_play:
+            return action
+        mirrored = self._mirrored.view(*self._mirrored.shape, *([1] * (action.dim() - 2)))
+        return torch.where(mirrored, mirror_action(action, self.domain), action)
+
+    def _observation(self, agents: TensorDictBase) -> torch.Tensor:
+        observation = agents.get("observation")
+        if not self.other_play:
+            return observation
+        mirrored = self._mirrored.view(*self._mirrored.shape, *([1] * (observation.dim() - 2)))
+        return torch.where(mirrored, mirror_observation(observation, self.core.layout), observation)
 
     def _output(self, core_out: TensorDictBase, reset: bool) -> TensorDictBase:
         agents = core_out.get(AGENT_GROUP)
@@ -544,7 +575,7 @@ class SelfPlayView(_SidewalkView):
         truncated = flags["truncated"].unsqueeze(1) & ~crashed
         done = terminated | truncated
         group = {
-            "observation": agents.get("observation"), "cost": agents.get("cost"),
+            "observation": self._observation(agents), "cost": agents.get("cost"),
             "done": done, "terminated": terminated, "truncated": truncated, "mask": ~done,
         }
         if not reset:

@@ -19,7 +19,7 @@ DOMAIN_ORDER = ("discrete", "continuous")
 # Keys that came into the config after runs were made, with the value that a run written without them had: an older
 # run without ``shield`` trained unshielded, so it is the same condition as a ``shield=false`` run, and a shielded run
 # is always a condition of its own.
-LATER_KEYS: dict[str, Any] = {"shield": False}
+LATER_KEYS: dict[str, Any] = {"shield": False, "other_play": False}
 # Env keys that came later, per domain (env.domain): the safety cost of runs written before it was counted.
 LATER_ENV_KEYS: dict[str, dict[str, Any]] = {
     "discrete": {"env.cost": "collision", "env.near_miss_margin": 1.0},
@@ -140,6 +140,8 @@ def _value(key: str, value: Any, domain: str) -> str:
         return "all shaped" if value is None else f"shaped {list(value)}"
     if key == "shield":
         return "shielded" if value else "unshielded"
+    if key == "other_play":
+        return "Other-Play" if value else "self-play"
     short = key.split(".", 1)[1] if key.startswith(("env.", "algo.")) else key
     return f"{short}={list(value) if isinstance(value, tuple) else value}"
 
@@ -156,7 +158,7 @@ def varying_keys(conditions: Sequence[Condition], ignore: Iterable[str] = ()) ->
 def describe(condition: Condition, keys: Sequence[str], limit: int | None = 4) -> str:
     """``condition`` told by its values of ``keys`` (opponent first, then shield, noise, reward, the rest), at most
     ``limit`` of them and then how many more; keys the condition does not have are left out."""
-    order = ["opponent.name", "shield", "reward.shaped_agents", "noise", "reward.name", "reward.alpha"]
+    order = ["opponent.name", "other_play", "shield", "reward.shaped_agents", "noise", "reward.name", "reward.alpha"]
     ranked = sorted(
         (k for k in keys if k in condition.flat),
         key=lambda k: (order.index(k) if k in order else len(order), k),

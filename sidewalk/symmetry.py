@@ -1,0 +1,85 @@
+"""The mirror across a layout's centre line, for Other-Play (Hu et al. 2020): observations and actions of both domains.
+
+The mirror maps the grid's row r to rows-1-r (UP and DOWN swap) and the plane's y to width-y (heading θ to -θ, the
+turn to -turn; a heading of -π shows as π). It is a symmetry of the game when every wall and every agent's own start and goal map onto
+themselves: the two-agent sidewalk, for instance, whose agents start and end on the centre line. An agent that plays
+mirrored sees the world as the mirror shows it and its action is mirrored back before the world steps, so it cannot
+tell a mirrored episode from a plain one and no convention that depends on a side ("pass on the left") survives.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+
+from sidewalk.envs.grid import VECTOR_FIELDS
+from sidewalk.envs.unicycle import OBSERVATION_FIELDS
+
+UP, DOWN = 0, 1
+
+
+def mirror_observation(observation: torch.Tensor, layout: Any) -> torch.Tensor:
+    """Observations (..., obs) of a world of ``layout`` as its mirror shows them: grid images (..., C, H, W) flipped
+    top to bottom, grid vectors (``VECTOR_FIELDS`` per agent, rows scaled to [0, 1]) and continuous vectors
+    (``OBSERVATION_FIELDS`` per agent) with their lateral coordinates and headings mirrored; an agent removed from the
+    world stays all zeros. The mirror is its own inverse."""
+    if hasattr(layout, "rows"):
+        if observation.dtype == torch.uint8:
+            return observation.flip(-2)
+        per_agent = observation.unflatten(-1, (-1, len(VECTOR_FIELDS)))
+        present = per_agent[..., VECTOR_FIELDS.index("present")]
+        mirrored = per_agent.clone()
+        for field in ("row", "goal_row"):
+            index = VECTOR_FIELDS.index(field)
+            mirrored[..., index] = (1.0 - per_agent[..., index]) * present
+        return mirrored.flatten(-2)
+    per_agent = observation.unflatten(-1, (-1, len(OBSERVATION_FIELDS)))
+    present = per_agent[..., OBSERVATION_FIELDS.index("present")]
+    mirrored = per_agent.clone()
+    for field in ("y", "goal_y"):
+        index = OBSERVATION_FIELDS.index(field)
+        mirrored[..., index] = (layout.width_m - per_agent[..., index]) * present
+    theta = OBSERVATION_FIELDS.index("theta")
+    mirrored[..., theta] = -per_agent[..., theta]  # not re-wrapped: an exact inverse, also of noisy headings
+    return mirrored.flatten(-2)
+
+
+def mirror_action(action: torch.Tensor, domain: str) -> torch.Tensor:
+    """Actions mirrored: grid (...,) UP and DOWN swapped; continuous (..., 2) the turn negated."""
+    if domain == "discrete":
+        return torch.where(action == UP, DOWN, torch.where(action == DOWN, UP, action))
+    return torch.stack([action[..., 0], -action[..., 1]], dim=-1)
+
+
+def _close(a: tuple, b: tuple) -> bool:
+    return all(math.isclose(x, y, abs_tol=1e-9) for x, y in zip(a, b))
+
+
+def check_mirror_symmetric(layout: Any) -> None:
+    """Raise ``ValueError`` naming the layout unless the mirror maps its walls onto its walls and every agent's own
+    start and goal onto themselves (random layouts: the walls; their starts and goals are drawn alike on both sides)."""
+    name = type(layout).__name__
+    if hasattr(layout, "rows"):
+        flip = lambda cell: (layout.rows - 1 - cell[0], cell[1])  # noqa: E731
+        walls_map = {tuple(cell) for cell in layout.blocked} == {flip(cell) for cell in layout.blocked}
+        roles_map = all(
+            flip(start) == tuple(start) and flip(goal) == tuple(goal) for start, goal in zip(layout.starts, layout.goals)
+        )
+    else:
+        flip = lambda point: (point[0], layout.width_m - point[1])  # noqa: E731
+        boxes = {tuple(round(v, 9) for v in box) for box in layout.boxes}
+        mirrored = {tuple(round(v, 9) for v in (x0, layout.width_m - y1, x1, layout.width_m - y0))
+                    for x0, y0, x1, y1 in layout.boxes}
+        walls_map = boxes == mirrored
+        roles_map = all(
+            _close(flip(start), start) and _close(flip(goal), goal) and math.isclose(math.sin(heading), 0.0, abs_tol=1e-9)
+            for start, goal, heading in zip(layout.starts, layout.goals, layout.headings)
+        )
+    if not (walls_map and roles_map):
+        raise ValueError(
+            f"other_play=true needs a layout that its mirror across the centre line maps onto itself, every agent's "
+            f"start and goal onto its own; this {name} does not (its walls or an agent's start or goal are off the "
+            "centre line): use env.layout=sidewalk, or a random layout with symmetric walls"
+        )
