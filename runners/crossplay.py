@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="crossplay: %(message)s", stream=sys.stderr)
 
-    from sidewalk.report.crossplay import CROSSPLAY_CSV, CROSSPLAY_JSON, write_crossplay_report
+    from sidewalk.report.crossplay import CONVENTIONS_CSV, CROSSPLAY_CSV, CROSSPLAY_JSON, write_crossplay_report
 
     if args.redraw:
         if args.runs:
@@ -96,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         "versions": package_versions(),
     }
     atomic_write(out / CROSSPLAY_CSV, lambda tmp: matrix.frame.to_csv(tmp, index=False))
+    atomic_write(out / CONVENTIONS_CSV, lambda tmp: matrix.conventions.to_csv(tmp, index=False))
     atomic_write(out / CROSSPLAY_JSON, lambda tmp: tmp.write_text(json.dumps(meta, indent=2) + "\n"))
     report = write_crossplay_report(out)
     print(

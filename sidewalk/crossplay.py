@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -389,6 +390,44 @@ class LearnedAgent(TensorDictModuleBase):
         return tensordict
 
 
+CONVENTION_COLUMNS = ("row_run", "row_label", "row_seed", "passing_side", "passing_fraction", "yielder", "episodes")
+
+
+def convention(trajectories: np.ndarray, domain: str, layout: Any) -> dict[str, Any]:
+    """The convention two agents followed on the two-agent sidewalk, from positions (T, k, 2, 2) of k episodes (NaN
+    once an agent finished; grid (row, col), continuous (x, y)); agent 0 walks along +col / +x, agent 1 the other way.
+
+    - ``passing_side``: at the first step where the agents' along-the-sidewalk coordinates cross, "left" if agent 0
+      is on its own left of agent 1 (grid: a smaller row; continuous: a larger y) -- by the half turn agent 1 is then
+      on its own left too: both keep left -- "right" the other way; the majority over the episodes that crossed with
+      a lateral gap ("none" if none did, crashes and standoffs among them), ``passing_fraction`` its share of all k;
+    - ``yielder``: in the episodes that crossed, the agent whose largest distance from the centre line was larger by
+      a clear margin (a cell; 0.1 m), in most of them: "agent 0", "agent 1", or "both" (they swerved alike).
+    """
+    along, lateral, left = (1, 0, -1.0) if domain == "discrete" else (0, 1, 1.0)
+    centre, margin = (layout.center_row, 1.0) if domain == "discrete" else (layout.width_m / 2, 0.1)
+    episodes = trajectories.shape[1]
+    with np.errstate(invalid="ignore"):
+        crossed = trajectories[:, :, 0, along] >= trajectories[:, :, 1, along]  # NaN (finished) compares False
+        first = crossed.argmax(0)
+        gap = left * (trajectories[first, np.arange(episodes), 0, lateral] - trajectories[first, np.arange(episodes), 1, lateral])
+        deviation = np.nanmax(np.abs(trajectories[..., lateral] - centre), axis=0)  # (k, 2)
+    passed = crossed.any(0) & (gap != 0)
+    sides = np.where(gap > 0, "left", "right")[passed]
+    if not passed.any():
+        return {"passing_side": "none", "passing_fraction": 0.0, "yielder": "none", "episodes": episodes}
+    side = max(("left", "right"), key=lambda s: int((sides == s).sum()))
+    swerve = deviation[passed, 0] - deviation[passed, 1]
+    yielders = np.where(swerve >= margin, "agent 0", np.where(swerve <= -margin, "agent 1", "both"))
+    names, counts = np.unique(yielders, return_counts=True)
+    return {
+        "passing_side": side,
+        "passing_fraction": float((sides == side).sum() / episodes),
+        "yielder": str(names[counts.argmax()]),
+        "episodes": episodes,
+    }
+
+
 class Arena:
     """The evaluation worlds of a matrix: one core env of ``episodes`` worlds per agent a row plays, and each
     learned player built once on it (a row for its agent, a partner for every other agent), so a matrix rebuilds
@@ -434,6 +473,20 @@ class Arena:
         view = EgoView(core, opponent, ego=ego)
         policy = LearnedAgent(view, self._player(row, ego, as_row=True))
         return evaluate(view, policy, seed=self.world_seed, deterministic=False)
+
+    def convention(self, row: Player) -> dict[str, Any]:
+        """The convention (``convention``) of ``row``'s policy playing every agent of the two-agent sidewalk, on the
+        matrix's worlds; "n/a" for other layouts."""
+        from sidewalk.evaluate import run_episodes
+        from sidewalk.views import EgoView
+
+        core = self.core(row.agent)
+        if self.world.layout != "sidewalk" or core.n_agents != 2:
+            return {"passing_side": "n/a", "passing_fraction": float("nan"), "yielder": "n/a", "episodes": 0}
+        view = EgoView(core, self._player(row, row.agent, as_row=False), ego=row.agent)
+        policy = LearnedAgent(view, self._player(row, row.agent, as_row=True))
+        record = run_episodes(view, policy, seed=self.world_seed, record_trajectories=self.episodes, deterministic=False)
+        return convention(record.trajectories, self.domain, core.layout)
 
 
 def evaluate_cell(
@@ -497,10 +550,12 @@ def crossplay(
 
 @dataclass
 class Matrix:
-    """A cross-play matrix evaluated: its table and how it was made (``crossplay.json``)."""
+    """A cross-play matrix evaluated: its table, how it was made (``crossplay.json``) and the convention each row's
+    policy follows with itself (``CONVENTION_COLUMNS``, ``conventions.csv``)."""
 
     frame: pd.DataFrame
     meta: dict[str, Any]
+    conventions: pd.DataFrame | None = None
 
 
 def run_crossplay(
@@ -529,6 +584,11 @@ def run_crossplay(
     check_players(learned, world, rows[0])
     with tqdm(total=len(rows) * len(columns), desc="cross-play", unit="cell", disable=not show_progress) as bar:
         frame = crossplay(rows, columns, world, episodes, seed, device, progress=bar.update)
+    arena = Arena(domain, world, episodes, seed, device)
+    conventions = pd.DataFrame(
+        [{"row_run": str(row.path), "row_label": row.label, "row_seed": row.seed, **arena.convention(row)} for row in rows],
+        columns=list(CONVENTION_COLUMNS),
+    )
     meta = {
         "domain": domain,
         "layout": world.layout,
@@ -540,4 +600,4 @@ def run_crossplay(
         "rows": [str(row.path) for row in rows],
         "partners": [column.name for column in columns],
     }
-    return Matrix(frame, meta)
+    return Matrix(frame, meta, conventions)

@@ -10,14 +10,16 @@ from __future__ import annotations
 import importlib.util
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
 import pandas as pd
 import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from sidewalk.config import register_schemas, validate
-from sidewalk.crossplay import COLUMNS, CrossplayError, evaluation_world, load_player, run_crossplay
+from sidewalk.crossplay import COLUMNS, CrossplayError, convention, evaluation_world, load_player, run_crossplay
 from sidewalk.envs import DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
 from sidewalk.experiment import EVAL_SEED_OFFSET, Trial
@@ -167,8 +169,12 @@ def test_the_runner_writes_the_same_csv_for_the_same_seed_with_figures_and_repor
         f"crossplay{part}_{metric}.png" for part in ("", "_by_condition")
         for metric in ("success", "collision_rate", "team_success")
     )
+    conventions = pd.read_csv(out / "conventions.csv")
+    assert sorted(conventions["row_run"]) == sorted(rows) and conventions["episodes"].eq(4).all()
+    assert set(conventions["passing_side"]) <= {"left", "right", "none"}
     report = (out / "report.md").read_text()
     assert "## Cross-play" in report and meta["command"] in report and "Not written yet" in report
+    assert "### Conventions" in report
     assert "| dqn vs dijkstra | " in report and "(figures/crossplay_by_condition_success.png)" in report
     (out / "notes.md").write_text("Seeds of one condition coordinate with each other.")
     assert runner.main(["--redraw", str(out)]) == 0
@@ -231,3 +237,36 @@ def test_distinct_rows_are_exact():
         assert torch.equal(rows[first_of][inverse], rows)
         assert len(first_of) == len(torch.unique(rows, dim=0))
         assert all(int(first) == int((inverse == group).nonzero()[0]) for group, first in enumerate(first_of))
+
+
+def _walk(lateral_0: float, lateral_1: float, steps: int = 15, length: float = 14.0) -> np.ndarray:
+    """Positions (T, 1, 2, 2) of agent 0 walking along +along and agent 1 the other way, at fixed lateral places,
+    as (lateral, along): the grid's (row, col)."""
+    along = np.linspace(0.0, length, steps)
+    trajectory = np.zeros((steps, 1, 2, 2))
+    trajectory[:, 0, 0] = np.stack([np.full(steps, lateral_0), along], -1)
+    trajectory[:, 0, 1] = np.stack([np.full(steps, lateral_1), along[::-1]], -1)
+    return trajectory
+
+
+def test_convention_reads_the_passing_side_and_the_yielder_in_both_domains():
+    grid = SimpleNamespace(center_row=3.0)
+    # grid: agent 0 (facing +col, its left is row-1) keeps to row 3, agent 1 (facing -col, its left is row+1) steps
+    # to row 4: each is on its own left of the other, and agent 1 yields
+    assert convention(_walk(3, 4), "discrete", grid) == {
+        "passing_side": "left", "passing_fraction": 1.0, "yielder": "agent 1", "episodes": 1}
+    assert convention(_walk(4, 3), "discrete", grid)["passing_side"] == "right"
+    assert convention(_walk(2, 4), "discrete", grid)["yielder"] == "both"
+    # continuous, as (x, y): agent 0 at a larger y than agent 1 is on its own left
+    plane = SimpleNamespace(width_m=3.0)
+    continuous = _walk(1.9, 1.5, length=3.0)[..., ::-1].copy()
+    assert convention(continuous, "continuous", plane) == {
+        "passing_side": "left", "passing_fraction": 1.0, "yielder": "agent 0", "episodes": 1}
+    # an agent that crashed before they crossed (NaN from then on): no pass, no yielder
+    crashed = continuous.copy()
+    crashed[5:, 0, 1] = np.nan
+    assert convention(crashed, "continuous", plane) == {
+        "passing_side": "none", "passing_fraction": 0.0, "yielder": "none", "episodes": 1}
+    # two episodes, one each way: the majority is the first in order of a tie, at half the share
+    both = np.concatenate([continuous, _walk(1.1, 1.5, length=3.0)[..., ::-1]], axis=1)
+    assert convention(both, "continuous", plane)["passing_fraction"] == 0.5

@@ -27,6 +27,7 @@ log = logging.getLogger(__name__)
 
 CROSSPLAY_CSV = "crossplay.csv"
 CROSSPLAY_JSON = "crossplay.json"
+CONVENTIONS_CSV = "conventions.csv"  # the convention each row's policy follows with itself (sidewalk.crossplay.convention)
 NOTES = "notes.md"  # what the matrix shows, written by hand beside the CSV
 REPORT = "report.md"
 # Heatmaps: CSV column -> (title, colour map); every value is a rate in [0, 1].
@@ -58,6 +59,9 @@ def read_crossplay(folder: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     frame["skipped"] = frame["skipped"].fillna("")
     meta_path = folder / CROSSPLAY_JSON
     meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
+    conventions = folder / CONVENTIONS_CSV
+    if conventions.exists():
+        meta["conventions"] = pd.read_csv(conventions).to_dict("records")
     notes = folder / NOTES
     if notes.exists():
         meta["notes"] = notes.read_text().strip()
@@ -238,6 +242,21 @@ def crossplay_section(
     if folder is not None:
         md.append(f"- Every cell's numbers: [`{CROSSPLAY_CSV}`]({shown_path(folder / CROSSPLAY_CSV, out)}).")
     md.append("")
+    if meta.get("conventions"):
+        md += [
+            f"{sub} Conventions",
+            "",
+            "Each run's policy playing every agent on the same worlds: the side the agents pass on (\"left\": both keep "
+            "to their own left) and its share of the episodes, and who swerves most (`sidewalk.crossplay.convention`).",
+            "",
+            "| run | seed | passing side | share | yielder |",
+            "| --- | --- | --- | --- | --- |",
+        ]
+        md += [
+            f"| {c['row_label']} | {c['row_seed']} | {c['passing_side']} | {c['passing_fraction']:.2f} | {c['yielder']} |"
+            for c in meta["conventions"]
+        ]
+        md.append("")
     for metric, (title, cmap) in HEATMAP_METRICS.items():
         mean, pairs = condition_table(frame, metric)
         by_condition = figures_dir / f"{prefix}_by_condition_{metric}.png"

@@ -22,7 +22,8 @@ def row(run: Path, target: float) -> dict:
     final = evaluations.iloc[-1]
     return {
         "learner": f"{config.algo.name} ({config.opponent.name}, {config.env.domain}"
-        + (f", {config.env.layout}" if config.env.get("layout", "sidewalk") != "sidewalk" else "") + ")",
+        + (f", {config.env.layout}" if config.env.get("layout", "sidewalk") != "sidewalk" else "")
+        + (", Other-Play" if config.get("other_play", False) else "") + ")",
         "seed": int(config.seed),
         "final team success": round(float(summary.get("team/success_rate", final["eval/team/success_rate"])), 3),
         "final deadlock rate": summary.get("deadlock_rate", float("nan")),
