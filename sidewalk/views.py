@@ -550,18 +550,21 @@ class SelfPlayView(_SidewalkView):
             draw[:, 0] = False
             self._mirrored = torch.where(rows.unsqueeze(-1), draw, self._mirrored)
 
+    def _where_mirrored(self, value: torch.Tensor, mirrored_value: torch.Tensor) -> torch.Tensor:
+        """Per agent (B, N, ...): ``mirrored_value`` where the agent plays through the mirror, else ``value``."""
+        mirrored = self._mirrored.view(*self._mirrored.shape, *([1] * (value.dim() - 2)))
+        return torch.where(mirrored, mirrored_value, value)
+
     def _joint_action(self, action: torch.Tensor) -> torch.Tensor:
         if not self.other_play:
             return action
-        mirrored = self._mirrored.view(*self._mirrored.shape, *([1] * (action.dim() - 2)))
-        return torch.where(mirrored, mirror_action(action, self.domain), action)
+        return self._where_mirrored(action, mirror_action(action, self.domain))
 
     def _observation(self, agents: TensorDictBase) -> torch.Tensor:
         observation = agents.get("observation")
         if not self.other_play:
             return observation
-        mirrored = self._mirrored.view(*self._mirrored.shape, *([1] * (observation.dim() - 2)))
-        return torch.where(mirrored, mirror_observation(observation, self.core.layout), observation)
+        return self._where_mirrored(observation, mirror_observation(observation, self.core.layout))
 
     def _output(self, core_out: TensorDictBase, reset: bool) -> TensorDictBase:
         agents = core_out.get(AGENT_GROUP)

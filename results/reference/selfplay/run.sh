@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# The commands that produced results/reference/selfplay/ (README.md there gives what ran where and when), into
+# results/sweeps/. One torch thread a run; on the 2-core machine they ran two to four at a time.
+set -euo pipefail
+cd "$(dirname "$0")/../../.."
+main() { OMP_NUM_THREADS=1 python runners/main.py "$@"; }
+
+# Continuous sidewalk: IPPO and MAPPO self-play, 3 seeds, and IPPO with Other-Play (other_play=true), 3 seeds.
+main -m +experiment=selfplay_continuous hydra.sweep.dir=results/sweeps/selfplay_continuous
+main -m +experiment=selfplay_continuous algo=ippo other_play=true hydra.sweep.dir=results/sweeps/otherplay_continuous
+# Beside them: the centralized TRPO on the same reward, and TRPO against the PRM planner (single-agent partners for
+# the cross-play, and the check that the observation and head changes keep the safe reference's results).
+main -m env=continuous opponent=centralized algo=trpo reward.c_progress=0.1 iterations=100 eval_every=5 seed=0,1,2 \
+  hydra.sweep.dir=results/sweeps/centralized_continuous
+main -m +experiment=safe_continuous algo=trpo shield=false iterations=200 seed=0,1,2 \
+  hydra.sweep.dir=results/sweeps/check_trpo_prm
+main -m +experiment=safe_continuous algo=ppo_lagrangian shield=false iterations=200 seed=0,1,2 \
+  hydra.sweep.dir=results/sweeps/check_ppo_lagrangian
+
+# Grid sidewalk: IQL, VDN (seed 0) and QMIX (seeds 0-2) self-play at the preset's settings.
+main -m +experiment=selfplay_discrete algo=iql,vdn seed=0 hydra.sweep.dir=results/sweeps/selfplay_discrete
+main -m +experiment=selfplay_discrete algo=qmix seed=0,1,2 hydra.sweep.dir=results/sweeps/selfplay_discrete_qmix
+
+# Scenarios in self-play (continuous IPPO, seed 0): zipper, teams, circle, door.
+for scenario in zipper teams circle door; do
+  main +experiment=${scenario}_continuous opponent=self algo=ippo reward.c_progress=0.1 seed=0 iterations=100 \
+    eval_every=10 hydra.run.dir=results/sweeps/selfplay_scenarios_continuous/${scenario}_ippo_seed0
+done
+
+# The table of README.md, and the cross-play matrix of the continuous runs.
+python results/reference/selfplay/table.py results/sweeps/selfplay_continuous results/sweeps/otherplay_continuous \
+  results/sweeps/centralized_continuous results/sweeps/selfplay_discrete results/sweeps/selfplay_discrete_qmix \
+  results/sweeps/selfplay_scenarios_continuous
+python runners/crossplay.py results/sweeps/selfplay_continuous results/sweeps/otherplay_continuous \
+  results/sweeps/centralized_continuous results/sweeps/check_trpo_prm --out results/reference/selfplay/crossplay
