@@ -52,7 +52,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="crossplay: %(message)s", stream=sys.stderr)
 
-    from sidewalk.report.crossplay import CONVENTIONS_CSV, CROSSPLAY_CSV, CROSSPLAY_JSON, write_crossplay_report
+    from sidewalk.report.crossplay import (
+        CONVENTIONS_CSV,
+        CROSSPLAY_CSV,
+        CROSSPLAY_JSON,
+        write_crossplay_report,
+    )
 
     if args.redraw:
         if args.runs:

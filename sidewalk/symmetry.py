@@ -1,4 +1,6 @@
-"""The mirror across a layout's centre line, for Other-Play (Hu et al. 2020): observations and actions of both domains.
+"""The sidewalk's symmetries on observations and actions of both domains: the half turn that maps one agent's role
+onto the other's (learned partners playing another role, ``sidewalk.opponents.policy``) and the mirror across the
+centre line (Other-Play, Hu et al. 2020).
 
 The mirror maps the grid's row r to rows-1-r (UP and DOWN swap) and the plane's y to width-y (heading θ to -θ, the
 turn to -turn; a heading of -π shows as π). It is a symmetry of the game when every wall and every agent's own start and goal map onto
@@ -18,6 +20,28 @@ from sidewalk.envs.grid import VECTOR_FIELDS
 from sidewalk.envs.unicycle import OBSERVATION_FIELDS
 
 UP, DOWN = 0, 1
+
+
+def turn_observation(observation: torch.Tensor, layout: Any) -> torch.Tensor:
+    """Observations (..., obs) of a world of ``layout`` as the world turned by half a turn shows them (grid images
+    (..., C, H, W) uint8 or vectors of ``VECTOR_FIELDS`` per agent scaled to [0, 1]; continuous vectors of
+    ``OBSERVATION_FIELDS`` per agent). The flags stay, and an agent removed from the world stays all zeros."""
+    if hasattr(layout, "rows"):
+        if observation.dtype == torch.uint8:
+            return observation.flip(-1, -2)
+        per_agent = observation.unflatten(-1, (-1, len(VECTOR_FIELDS)))
+        present = per_agent[..., VECTOR_FIELDS.index("present"), None]
+        turned = per_agent.clone()
+        turned[..., :4] = (1.0 - per_agent[..., :4]) * present
+        return turned.flatten(-2)
+    per_agent = observation.unflatten(-1, (-1, len(OBSERVATION_FIELDS)))
+    present = per_agent[..., OBSERVATION_FIELDS.index("present")]
+    turned = per_agent.clone()
+    for x, y in ((0, 1), (4, 5)):
+        turned[..., x] = (layout.length_m - per_agent[..., x]) * present
+        turned[..., y] = (layout.width_m - per_agent[..., y]) * present
+    turned[..., 3] = (torch.remainder(per_agent[..., 3], 2 * math.pi) - math.pi) * present  # θ + π, in [-π, π)
+    return turned.flatten(-2)
 
 
 def mirror_observation(observation: torch.Tensor, layout: Any) -> torch.Tensor:
@@ -62,13 +86,13 @@ def check_mirror_symmetric(layout: Any) -> None:
     start and goal onto themselves (random layouts: the walls; their starts and goals are drawn alike on both sides)."""
     name = type(layout).__name__
     if hasattr(layout, "rows"):
-        flip = lambda cell: (layout.rows - 1 - cell[0], cell[1])  # noqa: E731
+        flip = lambda cell: (layout.rows - 1 - cell[0], cell[1])
         walls_map = {tuple(cell) for cell in layout.blocked} == {flip(cell) for cell in layout.blocked}
         roles_map = all(
             flip(start) == tuple(start) and flip(goal) == tuple(goal) for start, goal in zip(layout.starts, layout.goals)
         )
     else:
-        flip = lambda point: (point[0], layout.width_m - point[1])  # noqa: E731
+        flip = lambda point: (point[0], layout.width_m - point[1])
         boxes = {tuple(round(v, 9) for v in box) for box in layout.boxes}
         mirrored = {tuple(round(v, 9) for v in (x0, layout.width_m - y1, x1, layout.width_m - y0))
                     for x0, y0, x1, y1 in layout.boxes}

@@ -19,7 +19,14 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from sidewalk.config import register_schemas, validate
-from sidewalk.crossplay import COLUMNS, CrossplayError, convention, evaluation_world, load_player, run_crossplay
+from sidewalk.crossplay import (
+    COLUMNS,
+    CrossplayError,
+    convention,
+    evaluation_world,
+    load_player,
+    run_crossplay,
+)
 from sidewalk.envs import DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
 from sidewalk.experiment import EVAL_SEED_OFFSET, Trial

@@ -19,9 +19,9 @@ from sidewalk.algos.mappo import MAPPO, MAPPOConfig
 from sidewalk.config import register_schemas, validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.envs.grid import DiscreteParams
+from sidewalk.envs.unicycle import OBSERVATION_FIELDS
 from sidewalk.experiment import Trial
 from sidewalk.views import SelfPlayView
-from sidewalk.envs.unicycle import OBSERVATION_FIELDS
 
 torch.set_num_threads(1)  # small networks on a 2-core machine: threads only contend
 
@@ -81,7 +81,7 @@ def test_value_targets_are_each_agents_own_discounted_return(name):
     # One world, three steps: agent 0 is paid 1 at the last step, agent 1 at the first; the world terminates at
     # the third step. With a zero critic and lambda = 1 the target is the discounted return of each agent's own
     # reward, cut where the world's episode ends: gamma = 0.5 gives [0.25, 0.5, 1] and [1, 0, 0].
-    algo, env = learner(name, "continuous", gamma=0.5, gae_lambda=1.0)
+    algo, _ = learner(name, "continuous", gamma=0.5, gae_lambda=1.0)
     for parameter in algo.critic.parameters():
         parameter.data.zero_()
     obs = torch.randn(1, 3, 2, OBS_WIDTH)

@@ -78,9 +78,9 @@ def main() -> None:
         in_keys=[OBS], out_keys=[("agents", "state_value")],
     )
 
-    keys = dict(reward=("agents", "reward"), done=("agents", "done"), terminated=("agents", "terminated"),
-                value=("agents", "state_value"), advantage=("agents", "advantage"),
-                value_target=("agents", "value_target"))
+    keys = {"reward": ("agents", "reward"), "done": ("agents", "done"), "terminated": ("agents", "terminated"),
+            "value": ("agents", "state_value"), "advantage": ("agents", "advantage"),
+            "value_target": ("agents", "value_target")}
     advantage = GAE(gamma=0.99, lmbda=0.95, value_network=critic, average_gae=False)
     advantage.set_keys(**keys)
     loss = ClipPPOLoss(actor, critic, clip_epsilon=0.2, entropy_coeff=0.0, normalize_advantage=True,

@@ -4,6 +4,7 @@ networks of the on-policy learners (TRPO, PPO)."""
 from __future__ import annotations
 
 from typing import Any
+
 import torch
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn

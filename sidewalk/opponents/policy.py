@@ -34,8 +34,7 @@ from tensordict import TensorDict, TensorDictBase
 
 from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase
 from sidewalk.opponents.base import ACTION_KEY, Opponent, env_domain
-from sidewalk.envs.grid import VECTOR_FIELDS
-from sidewalk.envs.unicycle import OBSERVATION_FIELDS
+from sidewalk.symmetry import turn_observation
 
 OBSERVATION_KEY = (AGENT_GROUP, "observation")
 # Settings a partner may have been trained under differently: they change the game's payoffs or noise, not what
@@ -211,28 +210,6 @@ def role_map(domain: str, env_params: Any, trained: int, plays: int) -> str | No
             and min(heading_gap, 2 * math.pi - heading_gap) < 1e-9
         )
     return "half_turn" if symmetric and maps else None
-
-
-def turn_observation(observation: torch.Tensor, layout: Any) -> torch.Tensor:
-    """Observations (..., obs) of a world of ``layout`` as the world turned by half a turn shows them (grid images
-    (..., C, H, W) uint8 or vectors of ``VECTOR_FIELDS`` per agent scaled to [0, 1]; continuous vectors of
-    ``OBSERVATION_FIELDS`` per agent). The flags stay, and an agent removed from the world stays all zeros."""
-    if hasattr(layout, "rows"):
-        if observation.dtype == torch.uint8:
-            return observation.flip(-1, -2)
-        per_agent = observation.unflatten(-1, (-1, len(VECTOR_FIELDS)))
-        present = per_agent[..., VECTOR_FIELDS.index("present"), None]
-        turned = per_agent.clone()
-        turned[..., :4] = (1.0 - per_agent[..., :4]) * present
-        return turned.flatten(-2)
-    per_agent = observation.unflatten(-1, (-1, len(OBSERVATION_FIELDS)))
-    present = per_agent[..., OBSERVATION_FIELDS.index("present")]
-    turned = per_agent.clone()
-    for x, y in ((0, 1), (4, 5)):
-        turned[..., x] = (layout.length_m - per_agent[..., x]) * present
-        turned[..., y] = (layout.width_m - per_agent[..., y]) * present
-    turned[..., 3] = (torch.remainder(per_agent[..., 3], 2 * math.pi) - math.pi) * present  # θ + π, in [-π, π)
-    return turned.flatten(-2)
 
 
 class PolicyOpponent(Opponent):

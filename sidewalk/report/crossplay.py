@@ -246,8 +246,11 @@ def crossplay_section(
         md += [
             f"{sub} Conventions",
             "",
-            "Each run's policy playing every agent on the same worlds: the side the agents pass on (\"left\": both keep "
-            "to their own left) and its share of the episodes, and who swerves most (`sidewalk.crossplay.convention`).",
+            (
+                "Each run's policy playing every agent on the same worlds: the side the agents pass on (\"left\": both "
+                "keep to their own left) and its share of the episodes, and who swerves most "
+                "(`sidewalk.crossplay.convention`)."
+            ),
             "",
             "| run | seed | passing side | share | yielder |",
             "| --- | --- | --- | --- | --- |",
