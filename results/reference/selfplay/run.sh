@@ -21,7 +21,8 @@ main -m +experiment=safe_continuous algo=ppo_lagrangian shield=false iterations=
 main -m +experiment=selfplay_discrete algo=iql,vdn seed=0 hydra.sweep.dir=results/sweeps/selfplay_discrete
 main -m +experiment=selfplay_discrete algo=qmix seed=0,1,2 hydra.sweep.dir=results/sweeps/selfplay_discrete_qmix
 
-# Scenarios in self-play (continuous IPPO, seed 0): zipper, teams, circle, door.
+# Scenarios in self-play (continuous IPPO, seed 0): zipper, teams, circle, door; the same settings as the presets
+# conf/experiment/selfplay_<scenario>_continuous.yaml (written after these runs). Door was stopped at 73 iterations.
 for scenario in zipper teams circle door; do
   main +experiment=${scenario}_continuous opponent=self algo=ippo reward.c_progress=0.1 seed=0 iterations=100 \
     eval_every=10 hydra.run.dir=results/sweeps/selfplay_scenarios_continuous/${scenario}_ippo_seed0
