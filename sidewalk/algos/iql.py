@@ -42,9 +42,9 @@ class IQLConfig(DQNConfig, MultiAgentConfig):
     The defaults are DQN's against Dijkstra (the network, γ, lr, the batch of 4 steps of 128 worlds) with what the
     reference self-play runs used (results/reference/crossplay/): 16 gradient steps an iteration at Polyak 0.0125
     (the same target-network speed per frame as DQN's 4 at 0.05), ε floored at 0.15 (at 0.05 both greedy agents
-    settled into a head-on standoff), 600 iterations (307,200 frames: in results/reference/selfplay/ seed 0 of IQL and
-    VDN first reached team success 0.95 at 123k and 92k frames, and greedy evaluations still flipped between a pass
-    and a standoff after that). ``eps_ladder``
+    settled into a head-on standoff), 600 iterations (307,200 frames: in results/reference/selfplay/ seeds 0 and 1 of
+    IQL, VDN and QMIX first reached team success 0.95 at 61k-123k frames, and greedy evaluations still flipped between
+    a pass and a standoff after that). ``eps_ladder``
     (Ape-X's per-world ε) and ``lr_end`` (a linear step-size decay) are off by default: neither was measured at scale.
     """
 

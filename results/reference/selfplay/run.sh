@@ -17,9 +17,12 @@ main -m +experiment=safe_continuous algo=trpo shield=false iterations=200 seed=0
 main -m +experiment=safe_continuous algo=ppo_lagrangian shield=false iterations=200 seed=0,1,2 \
   hydra.sweep.dir=results/sweeps/check_ppo_lagrangian
 
-# Grid sidewalk: IQL, VDN (seed 0) and QMIX (seeds 0-2) self-play at the preset's settings.
+# Grid sidewalk: IQL, VDN (seeds 0, 1) and QMIX (seeds 0, 1; seed 2 stopped) self-play at the preset's settings.
 main -m +experiment=selfplay_discrete algo=iql,vdn seed=0 hydra.sweep.dir=results/sweeps/selfplay_discrete
 main -m +experiment=selfplay_discrete algo=qmix seed=0,1,2 hydra.sweep.dir=results/sweeps/selfplay_discrete_qmix
+for algo in iql vdn; do  # seed 1 of IQL and VDN
+  main +experiment=selfplay_discrete algo=$algo seed=1 hydra.run.dir=results/sweeps/selfplay_discrete_s1/${algo}_seed1
+done
 
 # Scenarios in self-play (continuous IPPO, seed 0): zipper, teams, circle, door; the same settings as the presets
 # conf/experiment/selfplay_<scenario>_continuous.yaml (written after these runs). Door was stopped at 73 iterations.
@@ -31,6 +34,6 @@ done
 # The table of README.md, and the cross-play matrix of the continuous runs.
 python results/reference/selfplay/table.py results/sweeps/selfplay_continuous results/sweeps/otherplay_continuous \
   results/sweeps/centralized_continuous results/sweeps/selfplay_discrete results/sweeps/selfplay_discrete_qmix \
-  results/sweeps/selfplay_scenarios_continuous
+  results/sweeps/selfplay_discrete_s1 results/sweeps/selfplay_scenarios_continuous
 python runners/crossplay.py results/sweeps/selfplay_continuous results/sweeps/otherplay_continuous \
   results/sweeps/centralized_continuous results/sweeps/check_trpo_prm --out results/reference/selfplay/crossplay
