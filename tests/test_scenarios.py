@@ -336,3 +336,51 @@ def test_progress_shaping_pays_per_cell_of_shortest_path_around_the_walls():
     assert np.allclose(rewards, expected, atol=1e-6)
     with pytest.raises(ValueError, match="c_progress needs a 70×70 grid"):
         DiscreteSidewalkEnv(1, layout="random", width_cells=70, length_cells=70, rewards={"c_progress": 0.01})
+
+
+def test_continuous_progress_shaping_measures_the_path_through_the_door():
+    from sidewalk.envs.geodesic import GeodesicDistance
+
+    env = ContinuousSidewalkEnv(1, seed=0, layout="door", n_agents=3, length_m=6.0, width_m=3.0,
+                                rewards={"c_progress": 0.1})
+    layout, radius = env.layout, env.params.agent_radius_m
+    path = GeodesicDistance(torch.tensor(layout.boxes), layout.length_m, layout.width_m, radius)
+    (wall_x0, _, wall_x1, gap_y0), _ = layout.boxes
+    grow = radius / 2**0.5
+    # Agent 1 starts below the gap's line: round the gap's lower corners, each grown r/√2 (r from the box corner).
+    (sx, sy), (gx, gy) = layout.starts[1], layout.goals[1]
+    corner_in, corner_out = (wall_x0 - grow, gap_y0 + grow), (wall_x1 + grow, gap_y0 + grow)
+    by_hand = math.dist((sx, sy), corner_in) + math.dist(corner_in, corner_out) + math.dist(corner_out, (gx, gy))
+    measured = path(*(torch.tensor([v]) for v in (sx, sy, gx, gy)))
+    assert measured.item() == pytest.approx(by_hand, abs=1e-5) and by_hand > math.dist((sx, sy), (gx, gy)) + 0.15
+    # Agent 0 starts on the gap's line: nothing is in its way.
+    (x0, y0), (goal_x0, goal_y0) = layout.starts[0], layout.goals[0]
+    assert path(*(torch.tensor([v]) for v in (x0, y0, goal_x0, goal_y0))).item() == pytest.approx(goal_x0 - x0)
+    # The env pays c_progress per metre of that path: agent 1 driving straight at the wall earns less than the
+    # metres it walked (the straight line would pay them all).
+    rewards = {}
+    for c_progress in (0.0, 0.1):
+        env = ContinuousSidewalkEnv(1, seed=0, layout="door", n_agents=3, length_m=6.0, width_m=3.0,
+                                    rewards={"c_progress": c_progress})
+        td = env.reset()
+        for _ in range(3):
+            last_x = td["agents", "state"][0, 1, 0].item()
+            td["agents", "action"] = torch.tensor([[[0.0, 0.0], [env.params.max_accel_mps2, 0.0], [0.0, 0.0]]])
+            td = env.step(td)["next"]
+        rewards[c_progress] = td["agents", "reward"][0, 1].item()
+        x, y = td["agents", "state"][0, 1, :2].tolist()
+    progress = path(*(torch.tensor([v]) for v in (last_x, y, gx, gy))) - path(*(torch.tensor([v]) for v in (x, y, gx, gy)))
+    assert rewards[0.1] - rewards[0.0] == pytest.approx(0.1 * progress.item(), abs=1e-5)
+    assert 0 < progress.item() < x - last_x
+
+
+def test_geodesic_distance_is_the_straight_line_in_a_room_without_walls():
+    from sidewalk.envs.geodesic import GeodesicDistance, blocked
+
+    path = GeodesicDistance(torch.zeros(0, 4), 9.0, 3.0, 0.3)
+    x, y = torch.rand(50) * 9, torch.rand(50) * 3
+    torch.testing.assert_close(path(x, y, x.flip(0), y.flip(0)), torch.hypot(x - x.flip(0), y - y.flip(0)))
+    box = torch.tensor([[1.0, 1.0, 2.0, 2.0]])
+    segments = torch.tensor([[[0.0, 1.5], [3.0, 1.5]], [[0.0, 1.0], [3.0, 1.0]], [[0.0, 0.0], [1.0, 1.0]],
+                             [[1.5, 1.5], [1.6, 1.6]], [[0.0, 0.5], [3.0, 0.5]], [[1.5, 0.0], [1.5, 3.0]]])
+    assert blocked(segments[:, 0], segments[:, 1], box).tolist() == [True, False, False, True, False, True]

@@ -12,6 +12,7 @@ from torchrl.data import Bounded, Unbounded
 
 from sidewalk._checks import check_choice, check_int, check_range
 from sidewalk.envs.base import COSTS, SidewalkEnvBase, new_output
+from sidewalk.envs.geodesic import GeodesicDistance
 from sidewalk.envs.layouts import PlaneLayout, RandomPlaneLayout, plane_layout
 from sidewalk.envs.rewards import RewardParams
 
@@ -128,6 +129,9 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         )
         self._present = torch.zeros(shape, dtype=torch.bool, device=device)
         self._c_potential, self._c_progress = float(p.rewards.c_potential), float(p.rewards.c_progress)
+        # Progress is measured along the shortest path around interior walls: a straight line would pay for
+        # walking into the door's wall.
+        self._path_length = GeodesicDistance(self._boxes, self.layout.length_m, self.layout.width_m, radius)
 
     def _agent_specs(self) -> tuple[dict[str, Any], Any]:
         agents, device, n = (*self.batch_size, self.n_agents), self.device, self.n_agents
@@ -213,8 +217,8 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         reached = mover & ~hit_agent & (to_goal_sq <= p.goal_radius_m**2)
         shaping = self._c_potential * to_goal_sq
         if self._c_progress != 0.0:
-            before = ((self._goal_x - self._x).square() + (self._goal_y - self._y).square()).sqrt()
-            shaping = shaping + self._c_progress * (before - to_goal_sq.sqrt())
+            before = self._path_length(self._x, self._y, self._goal_x, self._goal_y)
+            shaping = shaping + self._c_progress * (before - self._path_length(x, y, self._goal_x, self._goal_y))
 
         self._x, self._y, self._heading = x, y, heading
         self._speed = speed.masked_fill(reached | hit_wall | hit_agent, 0.0)
