@@ -150,8 +150,9 @@ def test_a_scenario_refuses_an_agent_count_it_cannot_hold(layout, n_agents, matc
 
 
 def test_a_crowded_random_plane_names_a_size_that_fits():
+    # A room the user gives is theirs: too small is refused (given none, the layout picks one that fits).
     with pytest.raises(ValueError, match=r"n_agents=16 crowd the 4.0×3.0 m random layout.*use at least"):
-        ContinuousSidewalkEnv(1, layout="random", n_agents=16)
+        ContinuousSidewalkEnv(1, layout="random", n_agents=16, length_m=4.0, width_m=3.0)
 
 
 # ---- dynamics with N agents --------------------------------------------------------------------------------

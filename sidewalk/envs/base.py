@@ -118,6 +118,8 @@ class SidewalkEnvBase(EnvBase):
         **overrides: Any,
     ) -> None:
         check_int("num_envs", num_envs, 1)
+        if params is None:
+            overrides = self.with_room(overrides)
         if isinstance(overrides.get("rewards"), Mapping):
             overrides["rewards"] = replace_checked(RewardParams(), overrides["rewards"], "rewards")
         self.params = replace_checked(params if params is not None else self.Params(), overrides, type(self).__name__)
@@ -366,6 +368,28 @@ class SidewalkEnvBase(EnvBase):
 
     # ---- conveniences -------------------------------------------------------------------------------------------
 
+    room_sides: tuple[str, str]  # the names of the room's two sides in ``Params``, in ``_room``'s order
+
+    @classmethod
+    def with_room(cls, overrides: Mapping[str, Any]) -> dict[str, Any]:
+        """``overrides`` of ``Params`` with the room's sides that were left out set for the named layout and its
+        agents: the default room wherever it holds them (every result there stays as it was), else the scenario's
+        own room (``_room``). A side the user gives stays, too small or not (the layout then refuses it)."""
+        if all(side in overrides for side in cls.room_sides):
+            return dict(overrides)
+        # Checked as the env checks them, so that a bad value raises the same error (rewards: checked there).
+        p = replace_checked(cls.Params(), {k: v for k, v in overrides.items() if k != "rewards"}, cls.__name__)
+        if not isinstance(p.layout, str):
+            return dict(overrides)
+        default = cls.Params()
+        sides = cls._room(p, tuple(overrides.get(side) for side in cls.room_sides),
+                          tuple(getattr(default, side) for side in cls.room_sides))
+        return {**overrides, **dict(zip(cls.room_sides, sides, strict=True))}
+
+    @staticmethod
+    def _room(p: Any, given: tuple[Any, Any], default: tuple[Any, Any]) -> tuple[Any, Any]:
+        """The room's two sides for params ``p``: ``given`` where not None, else the layout's choice."""
+        raise NotImplementedError
     @property
     def generator(self) -> torch.Generator:
         """The env's random generator: opponents and views draw from it so that one seed fixes everything."""

@@ -12,7 +12,7 @@ from torchrl.data.tensor_specs import BoundedDiscrete
 
 from sidewalk._checks import check_choice, check_int, check_range
 from sidewalk.envs.base import COSTS, SidewalkEnvBase, new_output
-from sidewalk.envs.layouts import GridLayout, RandomGridLayout, grid_layout
+from sidewalk.envs.layouts import GridLayout, RandomGridLayout, grid_layout, grid_room
 from sidewalk.envs.rewards import RewardParams
 
 # (d_row, d_col) of UP, DOWN, LEFT, RIGHT; rows run across the sidewalk, columns along it.
@@ -121,6 +121,12 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
 
     Params = DiscreteParams
     shaping_weight_name = None  # two shaping terms, weighed in _advance: c_center and c_progress
+
+    room_sides = ("width_cells", "length_cells")
+
+    @staticmethod
+    def _room(p: DiscreteParams, given: tuple[Any, Any], default: tuple[Any, Any]) -> tuple[int, int]:
+        return grid_room(p.layout, p.n_agents, *given, default=default, min_start_goal_cells=p.min_start_goal_cells)
 
     @staticmethod
     def layout_for(p: DiscreteParams) -> GridLayout | RandomGridLayout:

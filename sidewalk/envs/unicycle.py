@@ -13,7 +13,7 @@ from torchrl.data import Bounded, Unbounded
 from sidewalk._checks import check_choice, check_int, check_range
 from sidewalk.envs.base import COSTS, SidewalkEnvBase, new_output
 from sidewalk.envs.geodesic import GeodesicDistance
-from sidewalk.envs.layouts import PlaneLayout, RandomPlaneLayout, plane_layout
+from sidewalk.envs.layouts import PlaneLayout, RandomPlaneLayout, plane_layout, plane_room
 from sidewalk.envs.rewards import RewardParams
 
 STATE_FIELDS = ("x", "y", "v", "theta")
@@ -93,6 +93,13 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
 
     Params = ContinuousParams
     shaping_weight_name = None  # two shaping terms, weighed in _advance: c_potential and c_progress
+
+    room_sides = ("length_m", "width_m")
+
+    @staticmethod
+    def _room(p: ContinuousParams, given: tuple[Any, Any], default: tuple[Any, Any]) -> tuple[float, float]:
+        return plane_room(p.layout, p.n_agents, *given, default=default, agent_radius_m=p.agent_radius_m,
+                          goal_radius_m=p.goal_radius_m)
 
     @staticmethod
     def layout_for(p: ContinuousParams) -> PlaneLayout | RandomPlaneLayout:
@@ -178,6 +185,8 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         if math.isfinite(action.sum().item()):
             return
         bad = ~torch.isfinite(action).all(-1)  # (B, N)
+        if not bad.any():
+            return  # finite entries whose float32 sum overflowed (unbounded actions, later clamped)
         worlds, agents = bad.nonzero(as_tuple=True)
         shown = ", ".join(
             f"world {w} agent {a}: {action[w, a].tolist()}" for w, a in zip(worlds[:5].tolist(), agents[:5].tolist())

@@ -16,6 +16,10 @@ continuous observation is a float32 Box whose bounds follow from the world's siz
 Actions: ``Discrete(4)`` (UP, DOWN, LEFT, RIGHT) or ``Discrete(16)`` for the centralized grid (joint index
 ``a0 * 4 + a1``); a float32 Box of (acceleration m/s², turn rad) per controlled agent in the continuous world, in
 physical units (libraries that want [-1, 1], like Stable-Baselines3, take ``gymnasium.wrappers.RescaleAction``).
+``step`` checks its action against the action space, as Gymnasium's own envs do (``checked_action``): one of
+the wrong kind (a float or bool for ``Discrete``, a string, NaN or inf), of the wrong shape or outside a
+``Discrete`` raises ``InvalidActionError`` (a ``gymnasium.error.InvalidAction`` and a ``ValueError``) naming
+the action and the space; a finite ``Box`` action beyond the bounds is accepted and clamped to them (SPEC §1).
 
 ``info`` holds ``is_success`` (the ego reached its goal; centralized: every agent did), ``cost`` (the learner's
 safety cost of the step, a float: the ego's, or the sum over the agents for the centralized view; 1 per agent that
@@ -34,6 +38,7 @@ observation with reward 0, cost 0 and ``terminated = truncated = False``.
 from __future__ import annotations
 
 import math
+import reprlib
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
@@ -108,7 +113,8 @@ def _continuous_observation_bounds(core: SidewalkEnvBase) -> tuple[np.ndarray, n
         "x": (-overshoot, length + overshoot),
         "y": (-overshoot, width + overshoot),
         "v": (-p.max_speed_mps, p.max_speed_mps),
-        "theta": (min(-math.pi, *start_headings), max(math.pi, *start_headings)),
+        # A random layout draws its headings per world (no fixed ones): the bounds are then [-π, π].
+        "theta": (min((-math.pi, *start_headings)), max((math.pi, *start_headings))),
         "goal_x": (0.0, length),
         "goal_y": (0.0, width),
         "active": (0.0, 1.0),
@@ -153,6 +159,72 @@ def view_spaces(view: EgoView | CentralizedView) -> tuple[spaces.Space, spaces.S
     return observation_space, _space(view.full_action_spec["action"], batch_dims=1)
 
 
+class InvalidActionError(gymnasium.error.InvalidAction, ValueError):
+    """An action outside its action space (wrong kind, shape or value): gymnasium's ``InvalidAction``, and a
+    ``ValueError`` for code that catches bad arguments."""
+
+
+def _shown(action: Any) -> str:
+    """A short one-line text of an action for an error message (a numpy scalar as its value: ``7``)."""
+    if isinstance(action, (np.ndarray, np.generic)):
+        if action.ndim == 0:
+            return reprlib.repr(action.item())
+        return " ".join(np.array2string(action, separator=", ", threshold=12, edgeitems=3).split())
+    return reprlib.repr(action)
+
+
+def checked_action(
+    action: Any, space: spaces.Discrete | spaces.Box, num_worlds: int | None = None, name: str = "action"
+) -> np.ndarray:
+    """``action`` as an array of ``space``'s dtype once it lies in ``space`` (with ``num_worlds``: one action
+    per world along a leading axis), else an ``InvalidActionError`` naming ``name``, the action (the first bad
+    world's) and the space. ``Discrete`` takes integers (Python or numpy, 0-d arrays included), not bools,
+    floats or strings. ``Box`` takes real numbers of its shape, not NaN or inf.
+
+    Decision: a finite ``Box`` value beyond the bounds is accepted and clamped by the core (SPEC §1), as
+    Gymnasium's Pendulum and MuJoCo envs clip theirs. Vectorised: no loop over worlds."""
+    batch_shape = () if num_worlds is None else (num_worlds,)
+    space_text = str(space)
+    if num_worlds is not None:
+        space_text += f", the action space of each of the {num_worlds} worlds"
+    try:
+        array = np.asarray(action)
+    except (TypeError, ValueError) as error:  # a ragged nested list
+        raise InvalidActionError(f"{name} {_shown(action)} is not in {space_text}: {error}") from None
+    discrete = isinstance(space, spaces.Discrete)
+    if array.dtype.kind not in ("iu" if discrete else "iuf"):
+        expected = "integers" if discrete else "real numbers"
+        raise InvalidActionError(
+            f"{name} {_shown(action)} is not in {space_text}: expected {expected}, got "
+            f"{type(action).__name__} (dtype {array.dtype})"
+        )
+    if array.shape != batch_shape + space.shape:
+        per_world = " (one action per world)" if num_worlds is not None else ""
+        raise InvalidActionError(
+            f"{name} {_shown(action)} is not in {space_text}: its shape is {array.shape}, expected "
+            f"{batch_shape + space.shape}{per_world}"
+        )
+    if discrete:
+        low, high = int(space.start), int(space.start + space.n)
+        bad = (array < low) | (array >= high)
+        reason = f"expected an integer in [{low}, {high})"
+    else:
+        with np.errstate(over="ignore"):  # a float64 beyond float32's range becomes inf, refused below
+            array = array.astype(space.dtype, copy=False)
+        bad = ~np.isfinite(array)
+        reason = f"NaN or infinite (as {space.dtype}); finite values beyond the bounds are clamped to them"
+        bad = bad.reshape(*batch_shape, -1).any(-1)
+    if not bad.any():
+        return array
+    if num_worlds is None:
+        raise InvalidActionError(f"{name} {_shown(action)} is not in {space_text}: {reason}")
+    worlds = np.flatnonzero(bad)
+    more = f" ({len(worlds)} worlds' actions are bad)" if len(worlds) > 1 else ""
+    raise InvalidActionError(
+        f"{name}[{worlds[0]}] = {_shown(array[worlds[0]])} is not in {space_text}: {reason}{more}"
+    )
+
+
 def _numpy(tensor: torch.Tensor) -> np.ndarray:
     # A copy, so that a caller editing its arrays in place cannot reach the env's tensors (the continuous core
     # hands the last noisy observation back on partial resets).
@@ -185,6 +257,7 @@ class SidewalkGymEnv(gymnasium.Env):
     ``domain`` is ``"discrete"`` or ``"continuous"``; ``opponent`` names the scripted opponent of the ego view or
     is ``"centralized"``; ``ego``, ``end_on_ego_done`` and ``opponent_kwargs`` go to ``EgoView``; every other
     keyword goes to the core env. ``reset(seed=...)`` seeds the world's generator (core, opponent and noise).
+    ``step`` refuses an action outside ``action_space`` with ``InvalidActionError`` (``checked_action``).
     The TorchRL view behind it is ``self.view``.
     """
 
@@ -222,7 +295,8 @@ class SidewalkGymEnv(gymnasium.Env):
         return self._observation(out), self._single_info(out)
 
     def step(self, action: Any):
-        action = torch.as_tensor(np.asarray(action), dtype=self._action_dtype, device=self.view.device)
+        checked = checked_action(action, self.action_space)
+        action = torch.as_tensor(checked, dtype=self._action_dtype, device=self.view.device)
         out = self.view._step(TensorDict({"action": action.reshape(self._action_shape)}, batch_size=[1]))
         return (
             self._observation(out),
@@ -262,7 +336,9 @@ class SidewalkVectorEnv(VectorEnv):
     along a leading ``num_envs`` axis; autoreset is gymnasium's default next-step mode (see the module docstring).
     ``reset(seed=s)`` seeds the one generator shared by every world; ``reset(options={"reset_mask": mask})``
     resets only the worlds in the bool mask and returns every world's observation. ``render()`` returns one frame
-    per world.
+    per world. ``step`` refuses actions of the wrong kind or shape, or any world's outside
+    ``single_action_space``, with ``InvalidActionError`` naming the first bad world (``checked_action``;
+    worlds about to autoreset included).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -323,7 +399,8 @@ class SidewalkVectorEnv(VectorEnv):
         return _numpy(out.get("observation")), self._vector_info(out)
 
     def step(self, actions: Any):
-        action = torch.as_tensor(np.asarray(actions), dtype=self._action_dtype, device=self.view.device)
+        checked = checked_action(actions, self.single_action_space, self.num_envs, name="actions")
+        action = torch.as_tensor(checked, dtype=self._action_dtype, device=self.view.device)
         out = self.view._step(
             TensorDict({"action": action.reshape(self._action_shape)}, batch_size=self._batch)
         )

@@ -6,6 +6,11 @@ Following PettingZoo, an agent leaves ``env.agents`` once it is terminated (reac
 truncated (timeout), so the cooperative reward a finished agent would still collect when another one arrives later
 (``alpha * c_goal``) is not delivered here; the TorchRL multi-agent env keeps every agent until the world ends.
 
+``step`` checks each live agent's action against its action space, as Gymnasium's envs do: one of the wrong
+kind or shape, or outside a ``Discrete``, raises ``sidewalk.interop.gymnasium.InvalidActionError`` naming the
+agent, its action and its space (a finished agent's action is ignored, unchecked); a finite continuous action
+beyond the bounds is clamped to them.
+
 ``infos[agent]`` holds that agent's outcome flags (``reached_goal``, ``collided_agent``, ``collided_wall``,
 ``timed_out``; sticky for the episode) and its safety ``cost`` of the step (a float: 1 on the step it hits a wall or
 another agent, with the core's ``cost="near_miss"`` also on steps it ends within ``near_miss_margin`` of another
@@ -33,7 +38,7 @@ from tensordict import TensorDict, TensorDictBase
 
 from sidewalk._checks import check_choice
 from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS
-from sidewalk.interop.gymnasium import DOMAINS, RENDER_FPS, RENDER_MODES, agent_spaces
+from sidewalk.interop.gymnasium import DOMAINS, RENDER_FPS, RENDER_MODES, agent_spaces, checked_action
 
 
 class SidewalkParallelEnv(ParallelEnv):
@@ -106,9 +111,8 @@ class SidewalkParallelEnv(ParallelEnv):
         # Finished agents no longer move, so their entry in the joint action is a placeholder.
         joint = torch.zeros(self._action_shape, dtype=self._action_dtype, device=self.core.device)
         for agent in live:
-            joint[0, self._index[agent]] = torch.as_tensor(
-                np.asarray(actions[agent]), dtype=self._action_dtype
-            )
+            action = checked_action(actions[agent], self.action_space(agent), name=f"{agent}'s action")
+            joint[0, self._index[agent]] = torch.as_tensor(action, dtype=self._action_dtype)
         core_in = TensorDict(
             {AGENT_GROUP: TensorDict({"action": joint}, batch_size=self._action_shape[:2])}, [1]
         )

@@ -16,7 +16,8 @@ older gymnasium and MuJoCo.
 
 The envs are the gymnasium face's (``sidewalk.interop.gymnasium``: same keywords, spaces, seeding, rendering and
 info) with the learner's cost moved from ``info["cost"]`` to the step's third element, where Safety-Gymnasium's envs
-report it; ``info["agents"]["cost"]`` keeps every agent's. The cost is a float (the ego's; with
+report it; ``info["agents"]["cost"]`` keeps every agent's. Actions are checked as there: one outside the
+action space raises ``InvalidActionError`` naming it and the space. The cost is a float (the ego's; with
 ``opponent="centralized"`` the agents' sum); in the vector env a (num_envs,) float32 array.
 
 The vector env is one batched core of ``num_envs`` worlds, like the gymnasium face's, but autoresets in the same step,

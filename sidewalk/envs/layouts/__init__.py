@@ -15,6 +15,12 @@ min_start_goal_cells)`` and ``<name>_plane(length_m, width_m, n_agents, agent_ra
 min_start_goal_m)``, plus its presets ``conf/experiment/<name>_{discrete,continuous}.yaml``; a new scenario is a
 new file and its name in ``SCENARIOS``. ``sample`` returns per-world starts and goals; a layout with ``fixed = False`` draws them from the env's generator
 on every reset, so random layouts differ between worlds and episodes and repeat exactly for one seed.
+
+A scenario for any number of agents also declares, per domain, how many agents a room holds
+(``<name>_grid_capacity(rows, cols, min_start_goal_cells)``, ``<name>_plane_capacity(length_m, width_m,
+agent_radius_m, goal_radius_m)``; its factory refuses more, naming the room) and its own room for N agents
+(``<name>_grid_room(n_agents)``, ``<name>_plane_room(n_agents, agent_radius_m, goal_radius_m)``): from them
+``grid_room`` / ``plane_room`` pick the room of an env given no size.
 """
 
 from __future__ import annotations
@@ -40,6 +46,17 @@ GRID_LAYOUTS: dict[str, Callable[..., GridLayout | RandomGridLayout]] = {
 PLANE_LAYOUTS: dict[str, Callable[..., PlaneLayout | RandomPlaneLayout]] = {
     name: getattr(module, f"{name}_plane") for name, module in _MODULES.items()
 }
+# The scenarios whose room sets how many agents they hold: their capacity and their own room for N agents.
+GRID_ROOMS: dict[str, tuple[Callable[..., int], Callable[[int], tuple[int, int]]]] = {
+    name: (getattr(module, f"{name}_grid_capacity"), getattr(module, f"{name}_grid_room"))
+    for name, module in _MODULES.items()
+    if hasattr(module, f"{name}_grid_room")
+}
+PLANE_ROOMS: dict[str, tuple[Callable[..., int], Callable[..., tuple[float, float]]]] = {
+    name: (getattr(module, f"{name}_plane_capacity"), getattr(module, f"{name}_plane_room"))
+    for name, module in _MODULES.items()
+    if hasattr(module, f"{name}_plane_room")
+}
 
 
 def grid_layout(
@@ -48,6 +65,59 @@ def grid_layout(
     """The grid scenario ``name`` on a ``rows`` × ``cols`` grid (raises naming the valid names or agent counts)."""
     check_choice("layout", name, GRID_LAYOUTS)
     return GRID_LAYOUTS[name](rows, cols, n_agents=n_agents, min_start_goal_cells=min_start_goal_cells)
+
+
+def grid_room(
+    name: str,
+    n_agents: int,
+    rows: int | None,
+    cols: int | None,
+    default: tuple[int, int],
+    min_start_goal_cells: int = 4,
+) -> tuple[int, int]:
+    """(rows, cols) of the grid scenario ``name`` for ``n_agents`` where the user gave at most one side (None:
+    not given). A given side stays; the others are ``default``'s where that room holds the agents (so a room
+    that held them before never changes), else the scenario's own room for ``n_agents``, never shorter than
+    ``default``."""
+    check_choice("layout", name, GRID_LAYOUTS)
+    proposed = (default[0] if rows is None else rows, default[1] if cols is None else cols)
+    if name not in GRID_ROOMS:
+        return proposed
+    capacity, own_room = GRID_ROOMS[name]
+    if capacity(*proposed, min_start_goal_cells) >= n_agents:
+        return proposed
+    own_rows, own_cols = own_room(n_agents)
+    return (
+        max(own_rows, default[0]) if rows is None else rows,
+        max(own_cols, default[1]) if cols is None else cols,
+    )
+
+
+def plane_room(
+    name: str,
+    n_agents: int,
+    length_m: float | None,
+    width_m: float | None,
+    default: tuple[float, float],
+    agent_radius_m: float = 0.3,
+    goal_radius_m: float = 0.3,
+) -> tuple[float, float]:
+    """(length_m, width_m) of the continuous scenario ``name`` for ``n_agents`` where the user gave at most
+    one side (None: not given). A given side stays; the others are ``default``'s where that room holds the
+    agents (so a room that held them before never changes), else the scenario's own room for ``n_agents``,
+    never shorter than ``default``."""
+    check_choice("layout", name, PLANE_LAYOUTS)
+    proposed = (default[0] if length_m is None else length_m, default[1] if width_m is None else width_m)
+    if name not in PLANE_ROOMS:
+        return proposed
+    capacity, own_room = PLANE_ROOMS[name]
+    if capacity(*proposed, agent_radius_m, goal_radius_m) >= n_agents:
+        return proposed
+    own_length_m, own_width_m = own_room(n_agents, agent_radius_m, goal_radius_m)
+    return (
+        max(own_length_m, default[0]) if length_m is None else length_m,
+        max(own_width_m, default[1]) if width_m is None else width_m,
+    )
 
 
 def plane_layout(
@@ -74,7 +144,9 @@ def plane_layout(
 __all__ = [
     "ANY_N_LAYOUTS",
     "GRID_LAYOUTS",
+    "GRID_ROOMS",
     "PLANE_LAYOUTS",
+    "PLANE_ROOMS",
     "SCENARIOS",
     "GridLayout",
     "PlaneLayout",
@@ -85,7 +157,9 @@ __all__ = [
     "door_grid",
     "door_plane",
     "grid_layout",
+    "grid_room",
     "plane_layout",
+    "plane_room",
     "random_grid",
     "random_plane",
     "sidewalk_grid",

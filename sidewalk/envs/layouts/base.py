@@ -3,6 +3,7 @@ helpers the scenario files share (agent counts, spacing, clearances)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -94,6 +95,8 @@ TEAM_SPACING_M = 0.8
 DOOR_WALL_M = 0.2  # thickness of the door's wall
 DOOR_SPACING_M = 1.2  # centre-to-centre spacing of the door's agents at the start
 ANY_N_LAYOUTS = ("random", "circle", "teams", "door")
+# What a refusal of too many agents for the room suggests.
+LARGER_ROOM_HINT = "give a larger room, or none: the layout then picks one that holds its agents"
 
 
 def blocked_mask_of(rows: int, cols: int, blocked: tuple[tuple[int, int], ...], device: torch.device) -> torch.Tensor:
@@ -112,15 +115,40 @@ def clear_of(candidates: torch.Tensor, placed: torch.Tensor, gap: float) -> torc
     return (dx.square() + dy.square() >= gap * gap).all(-1)
 
 
-def check_agents(layout: str, n_agents: int, low: int, high: int | None = None, *, even: bool = False) -> None:
-    """Raise naming the counts the scenario ``layout`` takes unless ``n_agents`` is one of them."""
+def check_agents(
+    layout: str,
+    n_agents: int,
+    low: int,
+    high: int | None = None,
+    *,
+    even: bool = False,
+    room: str | None = None,
+) -> None:
+    """Raise naming the counts the scenario ``layout`` takes unless ``n_agents`` is one of them; ``room``
+    (e.g. ``"4.0×3.0 m"``) names the room that sets ``high``, so that a room too small for its agents is
+    named."""
     check_int("n_agents", n_agents, 1)
-    if n_agents < low or (high is not None and n_agents > high) or (even and n_agents % 2):
-        need = f"exactly {low}" if high == low else f"an even number ≥ {low}" if even else f"{low}..{high or 'any'}"
+    too_many = high is not None and n_agents > high
+    if n_agents < low or too_many or (even and n_agents % 2):
+        span = f"{low}..{'any' if high is None else high}"
+        need = f"exactly {low}" if high == low else f"an even number in {span}" if even else span
+        where = f" in the {room} room" if room else ""
+        hint = f"; {LARGER_ROOM_HINT}" if room and too_many else ""
         raise ValueError(
-            f"layout {layout!r} takes {need} agents; got n_agents={n_agents} "
+            f"layout {layout!r} takes {need} agents{where}; got n_agents={n_agents}{hint} "
             f"(layouts for any number: {', '.join(n for n in ANY_N_LAYOUTS)})"
         )
+
+
+def side_by_side(width_m: float, agent_radius_m: float) -> int:
+    """How many agents fit side by side, ``TEAM_SPACING_M`` apart, across a ``width_m``-wide world."""
+    return int((width_m - 2 * agent_radius_m) // TEAM_SPACING_M) + 1
+
+
+def round_up(value: float, step: float) -> float:
+    """``value`` rounded up to a multiple of ``step`` (a room's side: round numbers, never smaller)."""
+    # The rounding to 9 places keeps 2.4000000000000004 at 2.4 rather than one step more.
+    return round(math.ceil(round(value / step, 9)) * step, 9)
 
 
 def spread(count: int, low: float, high: float) -> list[float]:

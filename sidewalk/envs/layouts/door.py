@@ -9,15 +9,43 @@ from sidewalk.envs.layouts.base import (
     GridLayout,
     PlaneLayout,
     check_agents,
+    round_up,
+    side_by_side,
     spread,
 )
+
+
+def door_grid_capacity(rows: int, cols: int, min_start_goal_cells: int = 0) -> int:
+    """Agents a ``rows`` × ``cols`` door room holds: one per row of the first column."""
+    return rows
+
+
+def door_grid_room(n_agents: int) -> tuple[int, int]:
+    """(rows, cols) of the door room for ``n_agents`` when the user gives none: the preset's 7 × 15, with rows
+    for every agent to start two rows apart."""
+    return max(7, 2 * n_agents - 1), 15
+
+
+def door_plane_capacity(
+    length_m: float, width_m: float, agent_radius_m: float = 0.3, goal_radius_m: float = 0.3
+) -> int:
+    """Agents a ``length_m`` × ``width_m`` door world holds: side by side across its first end."""
+    return side_by_side(width_m, agent_radius_m)
+
+
+def door_plane_room(
+    n_agents: int, agent_radius_m: float = 0.3, goal_radius_m: float = 0.3
+) -> tuple[float, float]:
+    """(length_m, width_m) of the door world for ``n_agents`` when the user gives none: the preset's 6 m long,
+    wide enough for one more agent abreast (3 m for three)."""
+    return 6.0, round_up(2 * agent_radius_m + TEAM_SPACING_M * n_agents, 0.1)
 
 
 def door_grid(rows: int, cols: int, n_agents: int = 2, min_start_goal_cells: int = 0) -> GridLayout:
     """"Three stooges": a wall across the middle column with a one-cell gap on the centre row; the agents start in
     the first column, two rows apart around the gap's row (agent 0 nearest it), their goals in the same rows of the
     last column: all must pass the gap one at a time."""
-    check_agents("door", n_agents, 1, rows)
+    check_agents("door", n_agents, 1, door_grid_capacity(rows, cols), room=f"{rows}×{cols}-cell")
     if cols < 5:
         raise ValueError(f"layout 'door' needs length_cells ≥ 5 (a wall between two sides); got {cols}")
     wall, gap = cols // 2, rows // 2
@@ -51,8 +79,8 @@ def door_plane(
     width is short, keeping a radius from the side walls) around the centre line at the first end (agent 0 nearest it), their goals in the same lines at
     the other end."""
     gap = 1.5 * 2 * agent_radius_m
-    fit = int((width_m - 2 * agent_radius_m) // TEAM_SPACING_M) + 1
-    check_agents("door", n_agents, 1, fit)
+    capacity = door_plane_capacity(length_m, width_m, agent_radius_m)
+    check_agents("door", n_agents, 1, capacity, room=f"{length_m}×{width_m} m")
     x0, x1 = length_m / 2 - DOOR_WALL_M / 2, length_m / 2 + DOOR_WALL_M / 2
     y0, y1 = width_m / 2 - gap / 2, width_m / 2 + gap / 2
     # Each disc keeps a radius of free space from the side walls, room for a planner to turn.

@@ -9,7 +9,29 @@ from dataclasses import dataclass
 import torch
 
 from sidewalk._checks import check_int, check_range
-from sidewalk.envs.layouts.base import CLEARANCE_M, blocked_mask_of, clear_of
+from sidewalk.envs.layouts.base import CLEARANCE_M, LARGER_ROOM_HINT, blocked_mask_of, clear_of, round_up
+
+
+def _far_cells(rows: int, cols: int, min_start_goal_cells: int) -> int:
+    """Cells at least ``min_start_goal_cells`` (Manhattan) from the centre of a ``rows`` × ``cols`` room: the
+    centre has the fewest cells far enough away, and each agent needs a goal among them."""
+    cells = rows * cols
+    center_row, center_col = rows // 2, cols // 2
+    row, col = torch.arange(cells) // cols, torch.arange(cells) % cols
+    return int(((row - center_row).abs() + (col - center_col).abs() >= min_start_goal_cells).sum())
+
+
+def _density(n_agents: int, length_m: float, width_m: float, wall_gap_m: float, gap_m: float) -> float:
+    """Area of ``n_agents`` discs of diameter ``gap_m`` over the free area of a random plane layout."""
+    return n_agents * math.pi * (gap_m / 2) ** 2 / ((length_m - 2 * wall_gap_m) * (width_m - 2 * wall_gap_m))
+
+
+def _gaps_m(agent_radius_m: float, goal_radius_m: float) -> tuple[float, float, float]:
+    """(start_gap_m, goal_gap_m, wall_gap_m): what a random plane layout keeps between starts, between goals
+    and from the walls, for discs and goals of these radii."""
+    start_gap_m = 2 * agent_radius_m + CLEARANCE_M
+    goal_gap_m = 2 * (agent_radius_m + goal_radius_m) + CLEARANCE_M
+    return start_gap_m, goal_gap_m, agent_radius_m + CLEARANCE_M
 
 
 @dataclass(frozen=True)
@@ -34,16 +56,18 @@ class RandomGridLayout:
     def __post_init__(self) -> None:
         check_int("rows", self.rows, 1)
         check_int("cols", self.cols, 1)
-        cells = self.rows * self.cols
-        check_int("n_agents", self.n_agents, 1, cells // 2)
-        # The centre cell has the fewest cells far enough away; each agent needs a goal among them.
-        center_row, center_col = self.rows // 2, self.cols // 2
-        row, col = torch.arange(cells) // self.cols, torch.arange(cells) % self.cols
-        far = int(((row - center_row).abs() + (col - center_col).abs() >= self.min_start_goal_cells).sum())
+        check_int("n_agents", self.n_agents, 1)
+        room = f"the {self.rows}×{self.cols}-cell random layout"
+        if self.n_agents > self.rows * self.cols // 2:
+            raise ValueError(
+                f"n_agents={self.n_agents} crowd {room} (at most {self.rows * self.cols // 2}: half its "
+                f"cells); {LARGER_ROOM_HINT}"
+            )
+        far = _far_cells(self.rows, self.cols, self.min_start_goal_cells)
         if far < self.n_agents:
             raise ValueError(
                 f"min_start_goal_cells={self.min_start_goal_cells} leaves {far} goal cells for an agent starting at "
-                f"the centre of the {self.rows}×{self.cols} room; {self.n_agents} agents need {self.n_agents}: "
+                f"the centre of {room}; {self.n_agents} agents need {self.n_agents}: "
                 "lower min_start_goal_cells or n_agents, or enlarge the room"
             )
 
@@ -145,12 +169,13 @@ class RandomPlaneLayout:
         if inner_x <= 0 or inner_y <= 0:
             raise ValueError(f"the {self.length_m}×{self.width_m} m world has no room for an agent")
         gap = max(self.start_gap_m, self.goal_gap_m)
-        density = self.n_agents * math.pi * (gap / 2) ** 2 / (inner_x * inner_y)
+        density = _density(self.n_agents, self.length_m, self.width_m, self.wall_gap_m, gap)
         if density > self.MAX_DENSITY:
             side = math.sqrt(self.n_agents * math.pi * (gap / 2) ** 2 / self.MAX_DENSITY) + 2 * self.wall_gap_m
             raise ValueError(
                 f"n_agents={self.n_agents} crowd the {self.length_m}×{self.width_m} m random layout ({density:.2f} of "
-                f"its area, at most {self.MAX_DENSITY}); use at least about {side:.1f}×{side:.1f} m"
+                f"its area, at most {self.MAX_DENSITY}); use at least about {side:.1f}×{side:.1f} m, or give "
+                "no size: the layout then picks one that holds its agents"
             )
         reach = 0.5 * math.hypot(inner_x, inner_y)
         check_range("min_start_goal_m", self.min_start_goal_m, 0.0, round(0.8 * reach, 3))
@@ -248,6 +273,48 @@ def _plane_bounds(length_m: float, width_m: float, wall_gap_m: float, device: to
     return low, span
 
 
+def random_grid_capacity(rows: int, cols: int, min_start_goal_cells: int = 4) -> int:
+    """Agents a ``rows`` × ``cols`` random room holds: half its cells, and a far enough goal for each."""
+    return min(rows * cols // 2, _far_cells(rows, cols, min_start_goal_cells))
+
+
+def random_grid_room(n_agents: int) -> tuple[int, int]:
+    """(rows, cols) of the random room for ``n_agents`` when the user gives none: the preset's 7 × 15 up to 4
+    agents, then the area grows like N (``round(7·sqrt(N/4))`` rows, twice as many columns plus one)."""
+    rows = round(7 * math.sqrt(max(n_agents, 4) / 4))
+    return rows, 2 * rows + 1
+
+
+def random_plane_capacity(
+    length_m: float, width_m: float, agent_radius_m: float = 0.3, goal_radius_m: float = 0.3
+) -> int:
+    """Agents a ``length_m`` × ``width_m`` random world holds: the most whose gap discs cover at most
+    ``RandomPlaneLayout.MAX_DENSITY`` of its free area."""
+    start_gap_m, goal_gap_m, wall_gap_m = _gaps_m(agent_radius_m, goal_radius_m)
+    if length_m <= 2 * wall_gap_m or width_m <= 2 * wall_gap_m:
+        return 0
+    gap_m = max(start_gap_m, goal_gap_m)
+    count = int(RandomPlaneLayout.MAX_DENSITY / _density(1, length_m, width_m, wall_gap_m, gap_m))
+    # The layout's own test, so that the count agrees with it to the last bit.
+    while _density(count + 1, length_m, width_m, wall_gap_m, gap_m) <= RandomPlaneLayout.MAX_DENSITY:
+        count += 1
+    while count > 0 and _density(count, length_m, width_m, wall_gap_m, gap_m) > RandomPlaneLayout.MAX_DENSITY:
+        count -= 1
+    return count
+
+
+def random_plane_room(
+    n_agents: int, agent_radius_m: float = 0.3, goal_radius_m: float = 0.3
+) -> tuple[float, float]:
+    """(length_m, width_m) of the random world for ``n_agents`` when the user gives none: a square at half the
+    density limit, rounded up to 0.5 m (6 m for 4 agents, the preset's)."""
+    start_gap_m, goal_gap_m, wall_gap_m = _gaps_m(agent_radius_m, goal_radius_m)
+    gap_m = max(start_gap_m, goal_gap_m)
+    area = n_agents * math.pi * (gap_m / 2) ** 2 / (RandomPlaneLayout.MAX_DENSITY / 2)
+    side = round_up(math.sqrt(area) + 2 * wall_gap_m, 0.5)
+    return side, side
+
+
 def random_grid(rows: int, cols: int, n_agents: int = 2, min_start_goal_cells: int = 4) -> RandomGridLayout:
     """``n_agents`` random starts and goals in an open room, redrawn per world and per episode."""
     check_int("min_start_goal_cells", min_start_goal_cells, 1, rows + cols - 2)
@@ -263,12 +330,13 @@ def random_plane(
     min_start_goal_m: float = 1.5,
 ) -> RandomPlaneLayout:
     """``n_agents`` random starts and goals in an open rectangle, redrawn per world and per episode."""
+    start_gap_m, goal_gap_m, wall_gap_m = _gaps_m(agent_radius_m, goal_radius_m)
     return RandomPlaneLayout(
         length_m=length_m,
         width_m=width_m,
         n_agents=n_agents,
         min_start_goal_m=min_start_goal_m,
-        start_gap_m=2 * agent_radius_m + CLEARANCE_M,
-        goal_gap_m=2 * (agent_radius_m + goal_radius_m) + CLEARANCE_M,
-        wall_gap_m=agent_radius_m + CLEARANCE_M,
+        start_gap_m=start_gap_m,
+        goal_gap_m=goal_gap_m,
+        wall_gap_m=wall_gap_m,
     )
