@@ -7,12 +7,15 @@
     python runners/main.py hydra.run.dir=results/runs/mine resume=true iterations=1000 keep_checkpoint=all
                                                    # extend a run that finished with keep_checkpoint=all
 
-Exit status: 0 done; 2 a bad config or run folder (nothing computed); 1 an error, or a learner that diverged;
-128 + n when signal n (SIGTERM, SIGUSR1) stopped the run after writing its checkpoint.
+Exit status: 0 done; 2 a bad config or run folder, or a folder another process is writing (nothing computed); 1 an
+error, or a learner that diverged; 128 + n when signal n (SIGTERM, SIGUSR1, Ctrl-C's SIGINT) stopped the run after
+writing its checkpoint (a second Ctrl-C stops at once, from the last checkpoint on).
 """
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
 import traceback
 from pathlib import Path
@@ -38,17 +41,39 @@ def main(cfg: DictConfig) -> float | None:
     run_dir = Path(hydra_cfg.runtime.output_dir)
     in_sweep = hydra_cfg.mode == RunMode.MULTIRUN
     config = OmegaConf.to_container(cfg, resolve=True)
-    try:
-        experiment = validate(cfg)  # every check before any compute
-        run_folder.check(run_dir, config, experiment.resume)
-    except (ValueError, TypeError, run_folder.RunFolderError) as error:
-        if in_sweep:
-            run_dir.mkdir(parents=True, exist_ok=True)
-            (run_dir / ERROR_FILE).write_text(f"invalid config or run folder: {error}\n")
+    with contextlib.ExitStack() as held:
+        try:
+            experiment = validate(cfg)  # every check before any compute
+            # One writer per folder, taken before the folder is read: a second process is refused here.
+            held.enter_context(run_folder.writer_lock(run_dir))
+            run_folder.check(run_dir, config, experiment.resume)
+        except run_folder.FolderInUse as error:
+            refuse(error, in_sweep, run_dir.with_name(f"{run_dir.name}.{ERROR_FILE}"))  # not its folder
             return None
-        print(f"error: {error}", file=sys.stderr)
-        sys.exit(2)
+        except (ValueError, TypeError, FileNotFoundError, NotADirectoryError, run_folder.RunFolderError) as error:
+            refuse(error, in_sweep, run_dir / ERROR_FILE)
+            return None
+        try:
+            return train(experiment, run_dir, config, in_sweep)
+        except KeyboardInterrupt:  # Ctrl-C before the training loop took over SIGINT (start-up, the final report)
+            print(f"\ninterrupted; {run_dir} keeps what it had written (resume=true continues a checkpointed run)",
+                  file=sys.stderr)
+            sys.exit(128 + signal.SIGINT)
 
+
+def refuse(error: Exception, in_sweep: bool, error_file: Path) -> None:
+    """A bad config or run folder, before any compute: one ``error:`` line and exit 2 (a sweep's job records it in
+    ``error_file`` and lets the others run)."""
+    if in_sweep:
+        error_file.parent.mkdir(parents=True, exist_ok=True)
+        error_file.write_text(f"invalid config or run folder: {error}\n")
+        return
+    print(f"error: {error}", file=sys.stderr)
+    sys.exit(2)
+
+
+def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | None:
+    """Run the trial and print its headline figures (and write its plots, outside a sweep)."""
     from sidewalk.experiment import LearnerDiverged, RunInterrupted, Trial
 
     try:

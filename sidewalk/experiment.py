@@ -13,8 +13,10 @@
 
 Files are replaced atomically (written beside, then renamed), so a crash or a kill never leaves one half-written,
 and a resumed run rewinds ``metrics.csv`` to its checkpoint before going on, so it ends with the same rows as a
-run that was never interrupted. SIGTERM or SIGUSR1 (a scheduler's pre-emption notice) ends the run at the end of
-its iteration with a checkpoint (``RunInterrupted``); a learner whose loss or parameters turn non-finite stops the
+run that was never interrupted. The trial holds the folder's writer lock (``run_folder.writer_lock``): a second
+process on the same folder is refused. SIGTERM, SIGUSR1 (a scheduler's pre-emption notice) and a first Ctrl-C
+(SIGINT) end the run at the end of its iteration with a checkpoint (``RunInterrupted``); a second Ctrl-C stops at
+once (the process dies of SIGINT), which atomic writes make safe for the folder; a learner whose loss or parameters turn non-finite stops the
 run before anything is written from it (``LearnerDiverged``), so the last checkpoint is the last good state.
 """
 
@@ -22,9 +24,11 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import platform
 import random
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -57,6 +61,7 @@ from sidewalk.run_folder import (
     record_start,
     save_checkpoint,
     save_policy,
+    writer_lock,
 )
 from sidewalk.views import CentralizedView, EgoView, SelfPlayView
 
@@ -214,7 +219,7 @@ def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:
 
 
 class RunInterrupted(Exception):
-    """SIGTERM/SIGUSR1 arrived; the run wrote a checkpoint at the end of ``iteration`` and stopped."""
+    """SIGTERM, SIGUSR1 or SIGINT arrived; the run wrote a checkpoint at the end of ``iteration`` and stopped."""
 
     def __init__(self, signum: int, iteration: int, run_dir: Path) -> None:
         self.signum, self.iteration = signum, iteration
@@ -242,10 +247,11 @@ def divergence(algo: Algorithm, logs: dict[str, float]) -> str | None:
 
 
 class StopSignals:
-    """Record SIGTERM/SIGUSR1 (Slurm's pre-emption and submitit's notice) instead of dying, so the loop can
-    checkpoint at the end of the iteration. Installed only in the main thread (Python's rule for handlers)."""
+    """Record SIGTERM/SIGUSR1 (Slurm's pre-emption and submitit's notice) and a first Ctrl-C instead of dying, so
+    the loop can checkpoint at the end of the iteration; a second Ctrl-C raises ``KeyboardInterrupt`` at once.
+    Installed only in the main thread (Python's rule for handlers)."""
 
-    SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGUSR1") if hasattr(signal, name))
+    SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGUSR1", "SIGINT") if hasattr(signal, name))
 
     def __init__(self) -> None:
         self.received: int | None = None
@@ -258,6 +264,15 @@ class StopSignals:
         return self
 
     def _record(self, signum: int, frame: Any) -> None:
+        if signum == signal.SIGINT and self.received == signal.SIGINT:
+            # The user insists: die of SIGINT now (exit 130). A KeyboardInterrupt raised inside TorchRL's loss
+            # surfaced as an unrelated RuntimeError; atomic writes keep the folder whole either way.
+            print("Ctrl-C again: stopped at once; resume=true continues from the last checkpoint", file=sys.stderr)
+            signal.signal(signal.SIGINT, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGINT)
+        if signum == signal.SIGINT:
+            print("\nCtrl-C: checkpointing at the end of this iteration (Ctrl-C again to stop at once)",
+                  file=sys.stderr, flush=True)
         self.received = signum
 
     def __exit__(self, *exc: object) -> None:
@@ -283,12 +298,18 @@ class Trial:
         progress: bool = True,
         on_evaluation: Callable[[dict[str, float], float, float], bool] | None = None,
     ) -> dict[str, float]:
-        """Train, evaluate and write the run folder; return the summary.
+        """Train, evaluate and write the run folder, holding its writer lock; return the summary.
 
         ``on_evaluation(metrics, started, ended)`` is called after each periodic evaluation with its metrics and
         its ``time.perf_counter()`` bounds; returning True ends training there (the run folder is completed as
         usual, with the iterations actually run).
         """
+        with writer_lock(self.run_dir):
+            return self._train(progress, on_evaluation)
+
+    def _train(
+        self, progress: bool, on_evaluation: Callable[[dict[str, float], float, float], bool] | None
+    ) -> dict[str, float]:
         exp = self.experiment
         revision = git_revision()  # the code this process loaded, not what the checkout holds when it ends
         torch.set_num_threads(exp.torch_threads)  # small networks: one thread beats contention on 2 cores

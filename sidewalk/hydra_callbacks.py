@@ -22,7 +22,8 @@ class SweepStatus(Callback):
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)
-        failed = sorted(sweep_dir.rglob(ERROR_FILE))
+        # A job refused because another process writes its folder leaves <folder>.error.txt beside it.
+        failed = sorted({*sweep_dir.rglob(ERROR_FILE), *sweep_dir.rglob(f"*.{ERROR_FILE}")})
         if failed:
             for path in failed:
                 first_line = path.read_text().strip().splitlines()[-1] if path.read_text().strip() else "?"

@@ -9,17 +9,25 @@ Files (see ``sidewalk.experiment`` for what the trial writes into them):
 - ``checkpoint.pt`` and ``checkpoint.prev.pt``: the newest full state and the one before it; a checkpoint that
   cannot be read is named in a warning and the previous one is used;
 - ``policy.pt``: the learner's networks only (no optimiser, no replay buffer), all a report or a render needs;
-  with ``keep_checkpoint=final`` (the default) it is all that stays of the state once the run has finished.
+  with ``keep_checkpoint=final`` (the default) it is all that stays of the state once the run has finished;
+- ``.writer.lock``: the lock of the one process that writes the folder (``writer_lock``) and who it is.
+
+Every ``.pt`` file is read back through ``read_torch_file``, which builds tensors and plain data only: a file
+someone sent cannot run code.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime
+import fcntl
 import json
 import os
+import pickle
+import socket
 import subprocess
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +40,7 @@ PREVIOUS_CHECKPOINT = "checkpoint.prev.pt"
 POLICY = "policy.pt"
 METRICS = "metrics.csv"
 SUMMARY = "summary.json"
+LOCK = ".writer.lock"
 # Keys a resume may change: the flag itself and what is kept after the run, neither of which changes a number.
 RESUME_MAY_CHANGE = ("resume", "keep_checkpoint")
 
@@ -40,11 +49,145 @@ class RunFolderError(RuntimeError):
     """A run folder that cannot be started or continued as asked (the message says why and what to do)."""
 
 
+class UnreadableFile(RunFolderError, ValueError):
+    """A file read back from a run folder that is torn, corrupt, or not a torch file (a ValueError too: a bad
+    input, which every runner reports as one ``error:`` line)."""
+
+    def __init__(self, path: Path, detail: str) -> None:
+        self.path, self.detail = path, detail
+        super().__init__(f"{path} is unreadable ({detail})")
+
+
+class UnsafeFile(UnreadableFile):
+    """A file read back that holds objects other than tensors, plain data and the few safe types checkpoints use:
+    refused before any of it is built, so nothing in it runs."""
+
+    def __init__(self, path: Path, held: list[str]) -> None:
+        self.path, self.held = path, held
+        self.detail = f"it holds {', '.join(held)}"
+        RunFolderError.__init__(
+            self,
+            f"{path} holds {', '.join(held)}: a sidewalk file holds only tensors and plain data, so it was refused and "
+            "nothing in it ran. Load it by hand only if you trust its author (torch.load(weights_only=False))",
+        )
+
+
+class FolderInUse(RunFolderError):
+    """Another live process writes the run folder (it holds the folder's lock)."""
+
+
+_held: dict[Path, tuple[int, int]] = {}  # run folder -> (lock file descriptor, nesting depth) held by this process
+
+
+@contextlib.contextmanager
+def writer_lock(run_dir: Path) -> Iterator[None]:
+    """Hold ``run_dir``'s writer lock for the block: an OS file lock (``flock``) on ``.writer.lock``, which the
+    kernel releases when the process ends in any way, so a killed writer leaves no stale lock. The file names the
+    holder (pid, host, start time) for the refusal another process gets: ``FolderInUse``, before any compute.
+    Re-entrant within a process (the runner takes it before its checks, the trial again around its loop)."""
+    key = Path(run_dir).resolve()
+    if key in _held:
+        descriptor, depth = _held[key]
+        _held[key] = (descriptor, depth + 1)
+        try:
+            yield
+        finally:
+            _held[key] = (descriptor, _held[key][1] - 1)
+        return
+    key.mkdir(parents=True, exist_ok=True)
+    descriptor = os.open(key / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.read(descriptor, 4096).decode(errors="replace").strip()
+        os.close(descriptor)
+        raise FolderInUse(_in_use_message(key, holder)) from None
+    holder = {"pid": os.getpid(), "host": socket.gethostname(),
+              "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds")}
+    os.ftruncate(descriptor, 0)
+    os.pwrite(descriptor, json.dumps(holder).encode(), 0)
+    _held[key] = (descriptor, 1)
+    try:
+        yield
+    finally:
+        del _held[key]
+        os.close(descriptor)  # closing the only descriptor releases the flock
+
+
+def _in_use_message(run_dir: Path, holder_text: str) -> str:
+    try:
+        holder = json.loads(holder_text)
+        who = f"pid {holder['pid']} on {holder['host']}, started {holder['started']}"
+    except (ValueError, KeyError, TypeError):
+        who = "a process that has not yet named itself"
+    return (f"{run_dir} is in use by another run ({who}): one process writes a run folder at a time. Wait for it "
+            "to end (or stop it: it checkpoints on SIGTERM or Ctrl-C), or choose another folder (hydra.run.dir=...)")
+
+
+def temporary_name(path: Path) -> Path:
+    """The temporary file beside ``path`` that this process writes before its atomic rename: named by host and pid,
+    so two writers never share one (and a leftover names the process that left it)."""
+    return path.with_name(f".{path.name}.{socket.gethostname()}.{os.getpid()}.tmp")
+
+
 def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
     """Write ``path`` through a temporary file beside it and an atomic rename: readers see old or new, never half."""
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = temporary_name(path)
     write(tmp)
     os.replace(tmp, path)
+
+
+# ---- reading files back -----------------------------------------------------------------------------------------
+
+
+def _safe_globals() -> list[Any]:
+    """What a checkpoint holds beyond tensors and plain data: TensorDicts (the replay buffer, the worlds
+    mid-episode, the collector's carrier) and NumPy's RNG state (an array). Their reconstructors only build
+    those types from tensors and plain data; every other global in a file is refused."""
+    import numpy as np
+    import tensordict
+    from tensordict._reductions import _make_td
+
+    try:
+        from numpy._core.multiarray import _reconstruct
+    except ImportError:  # NumPy 1
+        from numpy.core.multiarray import _reconstruct
+    return [
+        (_reconstruct, "numpy.core.multiarray._reconstruct"),  # the name NumPy 1 wrote
+        (_reconstruct, "numpy._core.multiarray._reconstruct"),
+        np.ndarray,
+        np.dtype,
+        type(np.dtype(np.uint32)),
+        _make_td,
+        tensordict.TensorDict,
+    ]
+
+
+def read_torch_file(path: str | Path, map_location: Any = "cpu", mmap: bool = False) -> Any:
+    """The one way the package reads a ``.pt`` file back (``policy.pt``, ``checkpoint.pt``, ``checkpoint.prev.pt``):
+    ``torch.load(weights_only=True)`` with only the safe types of ``_safe_globals`` allowed.
+
+    Raises ``UnsafeFile`` naming the file and the types it holds when it holds anything else (nothing in it is
+    built or run), and ``UnreadableFile`` when it is torn, corrupt or not a torch file.
+    """
+    import torch
+
+    path = Path(path)
+    try:
+        with torch.serialization.safe_globals(_safe_globals()):
+            return torch.load(path, map_location=map_location, weights_only=True, mmap=mmap)
+    except pickle.UnpicklingError as error:
+        try:
+            allowed = {item[1] if isinstance(item, tuple) else f"{item.__module__}.{item.__qualname__}"
+                       for item in _safe_globals()}
+            held = [name for name in torch.serialization.get_unsafe_globals_in_checkpoint(path) if name not in allowed]
+        except Exception:  # noqa: BLE001 (a file too broken to list is refused all the same)
+            held = []
+        if held:
+            raise UnsafeFile(path, sorted(held)) from None
+        raise UnreadableFile(path, f"UnpicklingError: {error}") from None
+    except Exception as error:  # noqa: BLE001 (a torn or corrupt file raises whatever the reader meets)
+        raise UnreadableFile(path, f"{type(error).__name__}: {error}") from None
 
 
 def git_revision() -> str:
@@ -163,7 +306,7 @@ def save_checkpoint(run_dir: Path, state: dict[str, Any]) -> None:
     import torch  # here, so that the report (which reads only the names above) does not load torch
 
     current, previous = run_dir / CHECKPOINT, run_dir / PREVIOUS_CHECKPOINT
-    tmp = current.with_name(f".{current.name}.tmp")
+    tmp = temporary_name(current)
     with open(tmp, "wb") as file:
         torch.save(state, file)
         file.flush()
@@ -175,9 +318,8 @@ def save_checkpoint(run_dir: Path, state: dict[str, Any]) -> None:
 
 def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> dict[str, Any]:
     """The newest readable checkpoint of ``run_dir``: ``checkpoint.pt``, or, when that is missing, truncated or
-    corrupt, ``checkpoint.prev.pt`` (with a warning naming the bad file and the error)."""
-    import torch
-
+    corrupt, ``checkpoint.prev.pt`` (with a warning naming the bad file and the error). A checkpoint that holds
+    more than a checkpoint does (``UnsafeFile``) is refused outright: it is no torn write, and none of it runs."""
     problems, unreadable = [], []
     for name in (CHECKPOINT, PREVIOUS_CHECKPOINT):
         path = run_dir / name
@@ -185,12 +327,13 @@ def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> dict[str, Any]:
             problems.append(f"{name}: missing")
             continue
         try:
-            state = torch.load(path, map_location=map_location, weights_only=False)
-        except Exception as error:  # noqa: BLE001 (a torn or corrupt file raises whatever the unpickler meets)
-            problems.append(f"{name}: unreadable ({type(error).__name__}: {error})")
+            state = read_torch_file(path, map_location=map_location)
+        except UnsafeFile:
+            raise
+        except UnreadableFile as error:
+            problems.append(f"{name}: unreadable ({error.detail})")
             unreadable.append(problems[-1])
-            print(f"warning: {path} is unreadable ({type(error).__name__}: {error}); trying the previous checkpoint",
-                  file=sys.stderr)
+            print(f"warning: {error}; trying the previous checkpoint", file=sys.stderr)
             continue
         if unreadable:
             append_history(run_dir, "checkpoint_fallback", unreadable=unreadable, used=name)

@@ -91,7 +91,7 @@ def read_partner(path: str | Path, map_location: str | torch.device = "cpu") -> 
     from sidewalk.envs.rewards import RewardParams
     from sidewalk.envs.unicycle import ContinuousParams
     from sidewalk.report.runs import policy_file
-    from sidewalk.run_folder import POLICY
+    from sidewalk.run_folder import POLICY, read_torch_file
 
     run_dir = Path(path)
     if not str(path):
@@ -104,10 +104,9 @@ def read_partner(path: str | Path, map_location: str | torch.device = "cpu") -> 
             f"opponent.path={str(path)!r} has no {POLICY}: the run has not written one yet (it does at its first "
             "checkpoint and at the end)"
         )
-    if file.name == POLICY:
-        state = torch.load(file, map_location=map_location, weights_only=True)
-    else:  # a run from before policy.pt was written at checkpoints: its own checkpoint (trusted, memory-mapped)
-        state = torch.load(file, map_location=map_location, weights_only=False, mmap=True)["algorithm"]
+    state = read_torch_file(file, map_location=map_location, mmap=file.name != POLICY)
+    if file.name != POLICY:  # a run from before policy.pt was written at checkpoints: its checkpoint's learner
+        state = state["algorithm"]
     described = state.get("description")
     if described is None:  # written before policy.pt described its world: the folder's config.yaml does
         from sidewalk.report.checkpoints import load_experiment

@@ -34,16 +34,16 @@ def load_experiment(run_dir: str | Path, device: str = "cpu"):
 def load_policy(run_dir: str | Path, experiment, env):
     """The greedy evaluation policy of the learner saved in ``run_dir`` (``policy.pt``, else ``checkpoint.pt``),
     rebuilt for ``env`` (a view built from ``experiment``)."""
-    import torch
     from torchrl.envs import RewardSum, TransformedEnv
 
     from sidewalk.algos import ALGORITHMS
+    from sidewalk.run_folder import read_torch_file
 
     path = policy_file(run_dir)
     if path is None:
         raise FileNotFoundError(f"{run_dir} has no {POLICY_FILES}: the run has no learned policy to replay")
     # mmap: a checkpoint's replay buffer can be large and is not needed here.
-    state = torch.load(path, map_location=experiment.device, weights_only=False, mmap=True)
+    state = read_torch_file(path, map_location=experiment.device, mmap=True)
     # The learner is built on the env as training built it (a RewardSum on top), so every spec matches.
     algo = ALGORITHMS[experiment.algo.name](
         experiment.algo, TransformedEnv(env, RewardSum()), device=experiment.device

@@ -42,6 +42,7 @@ from sidewalk.report.tables import (
     safety_finals,
     safety_table,
 )
+from sidewalk.run_folder import UnsafeFile
 
 log = logging.getLogger(__name__)
 
@@ -376,6 +377,8 @@ def trajectory_section(
         try:
             log.info("replaying %s (%s, seed %d)", condition.ident, condition.label, run.seed)
             replays.append((condition, replay(run, settings.trajectory_episodes)))
+        except UnsafeFile:
+            raise  # a file that would run code is refused outright, not skipped like a stale checkpoint
         except Exception as error:  # noqa: BLE001 (a checkpoint of another code version must not sink the report)
             problems.append(
                 f"{condition.ident}: could not replay {run.path}: {type(error).__name__}: {error}"

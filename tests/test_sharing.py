@@ -1,0 +1,191 @@
+"""Safe to share, safe to interrupt: a received file runs no code, one process writes a run folder, Ctrl-C
+checkpoints like SIGTERM, and every refusal is one ``error:`` line."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import torch
+
+from sidewalk.run_folder import (
+    FolderInUse,
+    UnreadableFile,
+    UnsafeFile,
+    load_checkpoint,
+    read_torch_file,
+    writer_lock,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+WALL_CLOCK = ["time_s", "frames_per_s"]
+TINY = [
+    "num_envs=4", "eval_every=4", "eval_episodes=8", "checkpoint_every=4", "logger=none",
+    "algo.frames_per_batch=16", "algo.batch_size=16", "algo.buffer_size=2000", "algo.learning_starts=0",
+    "algo.updates_per_batch=1",
+]
+
+
+def run_py(script: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, script, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout,
+                          check=False)
+
+
+class RunsCommand:
+    """Pickled, it makes ``torch.load(weights_only=False)`` run a shell command: here one that writes a marker."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return os.system, (f"touch {self.marker}",)
+
+
+@pytest.fixture(scope="module")
+def shared_run(tmp_path_factory) -> Path:
+    """A finished tiny DQN run that kept its checkpoints: the folder a colleague sends."""
+    run = tmp_path_factory.mktemp("shared") / "run"
+    result = run_py("runners/main.py", *TINY, "iterations=8", "keep_checkpoint=all", f"hydra.run.dir={run}")
+    assert result.returncode == 0, result.stderr
+    return run
+
+
+def poisoned_copy(shared_run: Path, tmp_path: Path, name: str) -> tuple[Path, Path]:
+    """A copy of the shared run whose ``name`` keeps its real content beside a pickled command."""
+    run, marker = tmp_path / "received", tmp_path / "marker"
+    shutil.copytree(shared_run, run)
+    state = torch.load(run / name, weights_only=False)  # our own file, trusted
+    state["extra"] = RunsCommand(marker)
+    torch.save(state, run / name)
+    return run, marker
+
+
+def one_error_line(result: subprocess.CompletedProcess, *expected: str) -> None:
+    assert result.returncode != 0, result.stdout
+    errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "Traceback" not in result.stderr, result.stderr
+    for text in expected:
+        assert text in errors[0], errors[0]
+
+
+@pytest.mark.parametrize("face", ["report", "render", "crossplay", "partner"])
+def test_a_policy_file_that_carries_code_is_refused_everywhere_and_nothing_runs(shared_run, tmp_path, face):
+    run, marker = poisoned_copy(shared_run, tmp_path, "policy.pt")
+    commands = {
+        "report": ("runners/report.py", str(run), "--out", str(tmp_path / "report"), "--resamples", "100"),
+        "render": ("runners/render.py", str(run), "--out", str(tmp_path / "episode.gif")),
+        "crossplay": ("runners/crossplay.py", str(run), "--out", str(tmp_path / "crossplay"), "--episodes", "4"),
+        "partner": ("runners/main.py", *TINY, "iterations=2", "opponent=policy", f"opponent.path={run}",
+                    f"hydra.run.dir={tmp_path / 'partnered'}"),
+    }
+    result = run_py(*commands[face])
+    one_error_line(result, str(run / "policy.pt"), "posix.system")
+    assert not marker.exists()
+
+
+def test_a_checkpoint_that_carries_code_is_refused_on_resume_and_nothing_runs(shared_run, tmp_path):
+    run, marker = poisoned_copy(shared_run, tmp_path, "checkpoint.pt")
+    result = run_py("runners/main.py", *TINY, "iterations=12", "keep_checkpoint=all", "resume=true",
+                    f"hydra.run.dir={run}")
+    one_error_line(result, str(run / "checkpoint.pt"), "posix.system")
+    assert not marker.exists()
+    # Not a torn write: the previous generation is not tried in its place (it would quietly lose iterations).
+    with pytest.raises(UnsafeFile, match="checkpoint.pt holds posix.system"):
+        load_checkpoint(run)
+
+
+def test_every_file_a_run_writes_reads_back_without_unpickling_objects(shared_run, tmp_path):
+    for name in ("policy.pt", "checkpoint.pt", "checkpoint.prev.pt"):
+        state = read_torch_file(shared_run / name)
+        assert isinstance(state, dict) and state
+    torn = tmp_path / "torn.pt"
+    torn.write_bytes((shared_run / "policy.pt").read_bytes()[:1000])
+    with pytest.raises(UnreadableFile, match="torn.pt is unreadable"):
+        read_torch_file(torn)
+
+
+def test_a_missing_or_corrupt_partner_is_one_error_line(shared_run, tmp_path):
+    missing = run_py("runners/main.py", *TINY, "iterations=2", "opponent=policy",
+                     f"opponent.path={tmp_path / 'nowhere'}", f"hydra.run.dir={tmp_path / 'a'}")
+    one_error_line(missing, str(tmp_path / "nowhere"))
+    run = tmp_path / "corrupt"
+    shutil.copytree(shared_run, run)
+    (run / "policy.pt").write_bytes(b"not a torch file")
+    corrupt = run_py("runners/main.py", *TINY, "iterations=2", "opponent=policy", f"opponent.path={run}",
+                     f"hydra.run.dir={tmp_path / 'b'}")
+    one_error_line(corrupt, str(run / "policy.pt"), "unreadable")
+    assert missing.returncode == corrupt.returncode == 2
+
+
+def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_one_leaves_no_lock(tmp_path):
+    run = tmp_path / "run"
+    overrides = [*TINY, "iterations=400", f"hydra.run.dir={run}"]
+    first = subprocess.Popen([sys.executable, "runners/main.py", *overrides], cwd=ROOT,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.time() + 300
+        while not (run / "checkpoint.pt").exists() and first.poll() is None and time.time() < deadline:
+            time.sleep(0.05)
+        assert first.poll() is None, "the first run ended before the second could ask for its folder"
+        second = run_py("runners/main.py", *overrides, "resume=true")
+        one_error_line(second, f"pid {first.pid}", "in use")
+        assert second.returncode == 2
+        with pytest.raises(FolderInUse, match=f"pid {first.pid}"), writer_lock(run):  # the library's callers too
+            pass
+    finally:
+        first.kill()  # SIGKILL: no handler runs, the kernel drops the lock
+        first.wait()
+    resumed = run_py("runners/main.py", *overrides, "resume=true", timeout=600)  # at once: no stale lock
+    assert resumed.returncode == 0, resumed.stderr
+    events = [json.loads(line)["event"] for line in (run / "history.jsonl").read_text().splitlines()]
+    assert events[0] == "started" and events[-2:] == ["resumed", "finished"]
+
+
+def test_ctrl_c_checkpoints_exits_130_and_resumes_to_the_uninterrupted_metrics(tmp_path):
+    overrides = [*TINY, "iterations=40", "checkpoint_every=5", "eval_every=10", "noise=0.1"]
+    whole = run_py("runners/main.py", *overrides, f"hydra.run.dir={tmp_path / 'whole'}", timeout=600)
+    assert whole.returncode == 0, whole.stderr
+    stopped = tmp_path / "stopped"
+    process = subprocess.Popen([sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={stopped}"],
+                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 300
+    while not (stopped / "checkpoint.pt").exists() and process.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=300)
+    assert process.returncode == 130, stderr
+    assert "SIGINT received: checkpointed at iteration" in stderr and "resume=true" in stderr
+    assert "Traceback" not in stderr
+    at = read_torch_file(stopped / "checkpoint.pt")["iteration"]
+    assert len(pd.read_csv(stopped / "metrics.csv")) == at < 40
+    resumed = run_py("runners/main.py", *overrides, f"hydra.run.dir={stopped}", "resume=true", timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    pd.testing.assert_frame_equal(pd.read_csv(stopped / "metrics.csv").drop(columns=WALL_CLOCK),
+                                  pd.read_csv(tmp_path / "whole" / "metrics.csv").drop(columns=WALL_CLOCK))
+
+
+def test_a_second_ctrl_c_stops_at_once():
+    # The first Ctrl-C is recorded (the loop checkpoints at the end of its iteration); the second kills the process
+    # by SIGINT where it stands, which the atomic writes (tests/test_experiment.py's kill -9) make safe.
+    script = """
+import os, signal, time
+from sidewalk.experiment import StopSignals
+with StopSignals() as signals:
+    os.kill(os.getpid(), signal.SIGINT); time.sleep(0.2)
+    print("recorded", signals.received, flush=True)
+    os.kill(os.getpid(), signal.SIGINT); time.sleep(2)
+    print("still running", flush=True)
+"""
+    result = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=120,
+                            check=False)
+    assert result.stdout.split("\n")[0] == f"recorded {int(signal.SIGINT)}"
+    assert "still running" not in result.stdout and result.returncode == -signal.SIGINT
+    assert "Ctrl-C again: stopped at once" in result.stderr
