@@ -15,6 +15,7 @@ writing its checkpoint (a second Ctrl-C stops at once, from the last checkpoint 
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import sys
 import traceback
@@ -22,8 +23,10 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.errors import HydraException, MissingConfigException
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from sidewalk import run_folder
 from sidewalk.config import register_schemas, validate
@@ -115,5 +118,35 @@ def write_plots(run_dir: Path) -> None:
     print(f"  plots and report       {result.report_md} ({len(result.figures)} figures)")
 
 
+def one_line(error: BaseException) -> str:
+    """A config error as one line: Hydra's own reports span many (options one per line, the search path)."""
+    first = str(error).strip().split("\n\n")[0]
+    text = " ".join(line.strip() for line in first.splitlines() if line.strip())
+    if isinstance(error, MissingConfigException) and error.options:
+        # The group's schema entries (*_default) are no choice of the user's.
+        valid = [option for option in error.options if not option.endswith("_default")]
+        text += f"; valid: {', '.join(valid)}"
+    cause = error.__cause__
+    if isinstance(cause, OmegaConfBaseException):
+        text += f": {str(cause).strip().splitlines()[0]}"
+    return text
+
+
+def cli() -> None:
+    """``main`` with every error as one ``error:`` line (exit 2 for a config Hydra cannot compose, 1 otherwise);
+    the traceback only with ``HYDRA_FULL_ERROR=1``."""
+    asked_for_traceback = os.environ.get("HYDRA_FULL_ERROR") == "1"
+    os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its multi-line report
+    try:
+        main()
+    except Exception as error:
+        if asked_for_traceback:
+            raise
+        config_error = isinstance(error, (HydraException, OmegaConfBaseException))
+        detail = one_line(error) if config_error else f"{type(error).__name__}: {one_line(error)}"
+        print(f"error: {detail} (HYDRA_FULL_ERROR=1 shows the traceback)", file=sys.stderr)
+        sys.exit(2 if config_error else 1)
+
+
 if __name__ == "__main__":
-    main()
+    cli()

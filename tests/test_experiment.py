@@ -104,7 +104,7 @@ def test_stopped_run_resumes_to_the_same_metrics(tmp_path, setup, stop):
         assert history(stopped)[-1]["event"] == "interrupted"
         import torch
 
-        at = torch.load(stopped / "checkpoint.pt", weights_only=False)["iteration"]
+        at = read_torch_file(stopped / "checkpoint.pt")["iteration"]
         assert len(pd.read_csv(stopped / "metrics.csv")) == at  # the metrics end where the checkpoint does
 
     main_py(*overrides, f"hydra.run.dir={stopped}", "resume=true", timeout=600)
@@ -189,7 +189,7 @@ def test_a_diverged_learner_stops_the_run_and_keeps_the_last_good_checkpoint(tmp
     monkeypatch.setattr(DQN, "update", update_that_diverges)
     with pytest.raises(LearnerDiverged, match="diverged at iteration 3: non-finite parameters of 'loss'"):
         Trial(validate(cfg), tmp_path, OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
-    assert torch.load(tmp_path / "checkpoint.pt", weights_only=False)["iteration"] == 2
+    assert read_torch_file(tmp_path / "checkpoint.pt")["iteration"] == 2
     assert len(pd.read_csv(tmp_path / "metrics.csv")) == 2
     assert history(tmp_path)[-1]["event"] == "diverged"
 

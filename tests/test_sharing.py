@@ -189,3 +189,21 @@ with StopSignals() as signals:
     assert result.stdout.split("\n")[0] == f"recorded {int(signal.SIGINT)}"
     assert "still running" not in result.stdout and result.returncode == -signal.SIGINT
     assert "Ctrl-C again: stopped at once" in result.stderr
+
+
+@pytest.mark.parametrize(
+    "override, expected",
+    [
+        ("algo=foo", "Could not find 'algo/foo'; valid: dqn, ippo, iql, mappo, ppo, ppo_lagrangian, qmix, trpo, vdn"),
+        ("iterations=abc", "iterations=abc: Value 'abc' of type 'str' could not be converted to Integer"),
+    ],
+)
+def test_a_config_hydra_cannot_compose_is_one_error_line_and_a_traceback_only_when_asked(tmp_path, override, expected):
+    result = run_py("runners/main.py", override, f"hydra.run.dir={tmp_path / 'run'}")
+    one_error_line(result, expected)
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "run").exists()  # nothing was written
+    asked = subprocess.run([sys.executable, "runners/main.py", override, f"hydra.run.dir={tmp_path / 'run'}"],
+                           cwd=ROOT, capture_output=True, text=True, timeout=300, check=False,
+                           env={**os.environ, "HYDRA_FULL_ERROR": "1"})
+    assert "Traceback" in asked.stderr and asked.returncode != 0
