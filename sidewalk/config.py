@@ -126,10 +126,27 @@ def with_schema_defaults(cfg: DictConfig) -> DictConfig:
     return cfg
 
 
+def room_side(*, _parent_: Any, _node_: Any) -> float | int:
+    """``${sidewalk.room:}``, the value of a room side in ``conf/env``: the side of the room the layout picks for its
+    agents (the default room wherever it holds them, so no result changes), honouring the other side where the user
+    gave it. The run's ``config.yaml`` records the number (configs are saved resolved)."""
+    from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
+
+    env_cls = DiscreteSidewalkEnv if _parent_.domain == "discrete" else ContinuousSidewalkEnv
+    side = _node_._key()
+    given = {key: _parent_[key] for key in ("layout", "n_agents", "agent_radius_m", "goal_radius_m",
+                                            "min_start_goal_m", "min_start_goal_cells") if key in _parent_}
+    for other in env_cls.room_sides:
+        if other != side and not _parent_._get_node(other)._is_interpolation():
+            given[other] = _parent_[other]
+    return env_cls.with_room(given)[side]
+
+
 def register_schemas() -> None:
-    """Put the schemas in Hydra's ConfigStore (idempotent)."""
+    """Put the schemas in Hydra's ConfigStore and the room resolver in OmegaConf (idempotent)."""
     from sidewalk.algos import ALGORITHMS
 
+    OmegaConf.register_new_resolver("sidewalk.room", room_side, replace=True)
     store = ConfigStore.instance()
     store.store(name="experiment_schema", node=ExperimentSchema)
     store.store(group="schema/env", name="discrete", node=DiscreteEnvSchema)

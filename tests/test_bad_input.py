@@ -5,6 +5,7 @@ works."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import gymnasium
 import numpy as np
@@ -316,3 +317,34 @@ def test_every_scenario_room_holds_the_agents_it_is_sized_for(name):
     grid_capacity, grid_room = GRID_ROOMS[name]
     for n_agents in range(2, 65, 2 if name == "teams" else 1):
         assert grid_capacity(*grid_room(n_agents), 4) >= n_agents, (name, n_agents)
+
+
+@pytest.mark.parametrize(
+    "overrides, room",
+    [
+        ([], {"width_cells": 7, "length_cells": 15}),
+        (["env.layout=door", "env.n_agents=8"], {"width_cells": 15, "length_cells": 15}),
+        (["env=continuous", "opponent=prm", "algo=trpo", "env.layout=random", "env.n_agents=8"],
+         {"length_m": 8.5, "width_m": 8.5}),
+        (["env=continuous", "opponent=prm", "algo=trpo", "env.layout=teams", "env.n_agents=8", "env.width_m=5"],
+         {"length_m": 4.0, "width_m": 5.0}),
+    ],
+)
+def test_a_hydra_config_that_gives_no_room_gets_one_that_holds_its_agents(overrides, room):
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from sidewalk.config import register_schemas, validate
+
+    register_schemas()
+    with initialize_config_dir(version_base="1.3", config_dir=str(Path(__file__).resolve().parents[1] / "conf")):
+        cfg = compose("config", overrides=overrides)
+    params = validate(cfg).env_params
+    assert {side: getattr(params, side) for side in room} == room
+    saved = OmegaConf.to_container(cfg, resolve=True)["env"]  # what config.yaml records: numbers
+    assert {side: saved[side] for side in room} == room
+    with initialize_config_dir(version_base="1.3", config_dir=str(Path(__file__).resolve().parents[1] / "conf")):
+        too_small = compose("config", overrides=["env=continuous", "opponent=prm", "algo=trpo",
+                                                         "env.layout=door", "env.n_agents=8", "env.width_m=2"])
+    with pytest.raises(ValueError, match=r"layout 'door' takes 1..2 agents in the 6.0×2.0 m room; got n_agents=8"):
+        validate(too_small)
