@@ -12,7 +12,7 @@ from torchrl.data import Bounded, Unbounded
 
 from sidewalk._checks import check_choice, check_int, check_range
 from sidewalk.envs.base import COSTS, SidewalkEnvBase, new_output
-from sidewalk.envs.geodesic import GeodesicDistance
+from sidewalk.envs.geodesic import GeodesicDistance, blocked
 from sidewalk.envs.layouts import PlaneLayout, RandomPlaneLayout, plane_layout, plane_room
 from sidewalk.envs.rewards import RewardParams
 
@@ -85,7 +85,8 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
     goal); a crashed agent removed from the world is all zeros, so no one sees it as an obstacle.
 
     One step: action noise, then the bounds; θ += turn; v = clip(v + a·dt, ±max_speed); (x, y) += v·(cos θ,
-    sin θ)·dt. Collisions: a disc leaving the rectangle or touching an interior box at the end of the step; two
+    sin θ)·dt. Collisions: a disc leaving the rectangle or touching an interior box at the end of the step, or
+    its centre crossing a box during the step (so no dt passes through a wall; a disc may graze a corner); two
     discs coming closer than two radii at any time during the step (each moves in a straight line within a step,
     so the closest approach of the pair is exact and no dt lets them pass through each other). An agent is at its
     goal when its centre is within ``goal_radius_m`` of it; it then stops there.
@@ -215,7 +216,9 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         (x_low, x_high), (y_low, y_high) = self._x_range, self._y_range
         hit_wall = active & ((x < x_low) | (x > x_high) | (y < y_low) | (y > y_high))
         if self._boxes.numel():
-            hit_wall = hit_wall | (active & self._touches_box(x, y))
+            # The end of the step, and the centre's path: a long step (large dt_s or speed) must not cross a wall.
+            crossed = blocked(torch.stack([self._x, self._y], -1), torch.stack([x, y], -1), self._boxes)
+            hit_wall = hit_wall | (active & (self._touches_box(x, y) | crossed))
         # Like the grid, an agent that hits a wall stays where it was (removed, or an obstacle there).
         x, y = torch.where(hit_wall, self._x, x), torch.where(hit_wall, self._y, y)
         present = self._present & ~hit_wall if p.remove_crashed else self._present

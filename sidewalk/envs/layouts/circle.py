@@ -35,7 +35,9 @@ def circle_plane_capacity(
     """Agents a ``length_m`` × ``width_m`` circle world holds on its largest circle, neighbours starting
     clear of each other."""
     radius = min(length_m, width_m) / 2 - agent_radius_m - CLEARANCE_M
-    # Neighbours on the circle are 2·R·sin(π/N) apart and must start clear of each other.
+    # Neighbours on the circle are 2·R·sin(π/N) apart and must start clear of each other (two: 2·R apart).
+    if 2 * radius < 2 * agent_radius_m + CLEARANCE_M:
+        return 1  # not even two fit: the layout refuses every count it takes
     fit = 2
     while 2 * radius * math.sin(math.pi / (fit + 1)) >= 2 * agent_radius_m + CLEARANCE_M:
         fit += 1

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
+
 from sidewalk.envs.layouts.base import (
+    CLEARANCE_M,
     DOOR_SPACING_M,
     DOOR_WALL_M,
     TEAM_SPACING_M,
@@ -10,7 +13,6 @@ from sidewalk.envs.layouts.base import (
     PlaneLayout,
     check_agents,
     round_up,
-    side_by_side,
     spread,
 )
 
@@ -29,8 +31,11 @@ def door_grid_room(n_agents: int) -> tuple[int, int]:
 def door_plane_capacity(
     length_m: float, width_m: float, agent_radius_m: float = 0.3, goal_radius_m: float = 0.3
 ) -> int:
-    """Agents a ``length_m`` × ``width_m`` door world holds: side by side across its first end."""
-    return side_by_side(width_m, agent_radius_m)
+    """Agents a ``length_m`` × ``width_m`` door world holds: side by side across its first end, each a radius of
+    free space from the side walls and starting clear of its neighbours."""
+    if width_m < 2 * agent_radius_m:
+        return 0
+    return 1 + math.floor(max(width_m - 4 * agent_radius_m, 0.0) / (2 * agent_radius_m + CLEARANCE_M) + 1e-9)
 
 
 def door_plane_room(
@@ -38,7 +43,8 @@ def door_plane_room(
 ) -> tuple[float, float]:
     """(length_m, width_m) of the door world for ``n_agents`` when the user gives none: the preset's 6 m long,
     wide enough for one more agent abreast (3 m for three)."""
-    return 6.0, round_up(2 * agent_radius_m + TEAM_SPACING_M * n_agents, 0.1)
+    apart = 4 * agent_radius_m + (n_agents - 1) * (2 * agent_radius_m + CLEARANCE_M)  # what door_plane_capacity needs
+    return 6.0, round_up(max(2 * agent_radius_m + TEAM_SPACING_M * n_agents, apart), 0.1)
 
 
 def door_grid(rows: int, cols: int, n_agents: int = 2, min_start_goal_cells: int = 0) -> GridLayout:
