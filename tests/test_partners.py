@@ -218,7 +218,9 @@ def test_policy_opponent_fills_only_its_agents(runs):
 
 @pytest.mark.parametrize(
     ("preset", "domain", "learners"),
-    [("selfplay_discrete", "discrete", "iql,vdn,qmix,ippo,mappo"), ("selfplay_continuous", "continuous", "ippo,mappo")],
+    [("selfplay_discrete", "discrete", "iql,vdn,qmix,ippo,mappo"), ("selfplay_continuous", "continuous", "ippo,mappo")]
+    + [(f"selfplay_{scenario}_{domain}", domain, "iql,vdn,qmix" if domain == "discrete" else "ippo,mappo")
+       for scenario in ("door", "zipper", "circle", "teams") for domain in ("discrete", "continuous")],
 )
 def test_self_play_presets_sweep_every_learner_of_their_domain(preset, domain, learners):
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
