@@ -18,8 +18,8 @@ class RewardParams:
     (per cell of distance from the central axis), ``c_potential`` the continuous world (per m² of squared
     distance to the agent's own goal); ``c_progress`` (ours, 0 by default) pays for the step's progress toward the
 agent's own goal -- in the grid per cell the shortest path around the walls shrank (for the scenarios whose walls
-make random exploration lethal), in the continuous world per metre the straight-line distance shrank (a dense
-signal like VMAS give_way's, for self-play) -- a potential-based term (Ng et al. 1999: it leaves the optimal
+make random exploration lethal), in the continuous world per metre the shortest path around interior walls shrank
+(the straight line where nothing stands between; ``sidewalk.envs.geodesic``; a dense signal like VMAS give_way's) -- a potential-based term (Ng et al. 1999: it leaves the optimal
 policies of the undiscounted game as they are). ``shaped_agents`` lists the agents that receive shaping; ``None`` means
     all of them (the paper's centralized continuous run shaped agent 0 only: ``(0,)``).
     """
