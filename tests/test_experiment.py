@@ -13,6 +13,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from sidewalk.run_folder import read_torch_file
+
 ROOT = Path(__file__).resolve().parents[1]
 WALL_CLOCK = ["time_s", "frames_per_s"]
 # A tiny run: a few worlds, small batches; the DQN learns from the first batch on.
@@ -102,8 +104,6 @@ def test_stopped_run_resumes_to_the_same_metrics(tmp_path, setup, stop):
     if stop == signal.SIGTERM:
         assert returncode == 128 + signal.SIGTERM
         assert history(stopped)[-1]["event"] == "interrupted"
-        import torch
-
         at = read_torch_file(stopped / "checkpoint.pt")["iteration"]
         assert len(pd.read_csv(stopped / "metrics.csv")) == at  # the metrics end where the checkpoint does
 

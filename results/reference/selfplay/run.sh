@@ -31,9 +31,26 @@ for scenario in zipper teams circle door; do
     eval_every=10 hydra.run.dir=results/sweeps/selfplay_scenarios_continuous/${scenario}_ippo_seed0
 done
 
+# 2026-11-25: grid seed 2 of IQL, VDN and QMIX; the grid scenarios in self-play (IQL, seed 0); the continuous door
+# with the progress shaping along the path around its wall (IPPO and MAPPO, 300 iterations) and teams with MAPPO.
+for algo in iql vdn qmix; do
+  main +experiment=selfplay_discrete algo=$algo seed=2 hydra.run.dir=results/sweeps/selfplay_discrete_s2/${algo}_seed2
+done
+for scenario in door zipper circle teams; do
+  main +experiment=selfplay_${scenario}_discrete seed=0 hydra.run.dir=results/sweeps/selfplay_scenarios_discrete/${scenario}_iql_seed0
+done
+for algo in ippo mappo; do
+  main +experiment=selfplay_door_continuous algo=$algo seed=0 iterations=300 eval_every=20 \
+    hydra.run.dir=results/sweeps/selfplay_scenarios_geodesic/door_${algo}_seed0_300
+done
+main +experiment=selfplay_teams_continuous algo=mappo seed=0 iterations=200 eval_every=20 \
+  hydra.run.dir=results/sweeps/selfplay_scenarios_geodesic/teams_mappo_seed0
+
 # The table of README.md, and the cross-play matrix of the continuous runs.
 python results/reference/selfplay/table.py results/sweeps/selfplay_continuous results/sweeps/otherplay_continuous \
   results/sweeps/centralized_continuous results/sweeps/selfplay_discrete results/sweeps/selfplay_discrete_qmix \
-  results/sweeps/selfplay_discrete_s1 results/sweeps/selfplay_scenarios_continuous
+  results/sweeps/selfplay_discrete_s1 results/sweeps/selfplay_scenarios_continuous results/sweeps/selfplay_discrete_s2
+python results/reference/selfplay/table.py --target 0.8 results/sweeps/selfplay_scenarios_discrete \
+  results/sweeps/selfplay_scenarios_geodesic
 python runners/crossplay.py results/sweeps/selfplay_continuous results/sweeps/otherplay_continuous \
   results/sweeps/centralized_continuous results/sweeps/check_trpo_prm --out results/reference/selfplay/crossplay
