@@ -43,6 +43,9 @@ for algo in ippo mappo; do
   main +experiment=selfplay_door_continuous algo=$algo seed=0 iterations=300 eval_every=20 \
     hydra.run.dir=results/sweeps/selfplay_scenarios_geodesic/door_${algo}_seed0_300
 done
+# Grid IPPO on images (seed 0; stopped at the session's end after 61,440 frames): ~22-27 min for 500 k frames alone.
+main +experiment=selfplay_discrete algo=ippo seed=0 iterations=245 eval_every=10 \
+  hydra.run.dir=results/sweeps/selfplay_discrete_images/ippo_seed0
 main +experiment=selfplay_teams_continuous algo=mappo seed=0 iterations=200 eval_every=20 \
   hydra.run.dir=results/sweeps/selfplay_scenarios_geodesic/teams_mappo_seed0
 
