@@ -67,6 +67,24 @@ def grid_layout(
     return GRID_LAYOUTS[name](rows, cols, n_agents=n_agents, min_start_goal_cells=min_start_goal_cells)
 
 
+def _room(
+    rooms: dict, layouts: dict, name: str, n_agents: int, given: tuple, default: tuple,
+    capacity_args: tuple, room_args: tuple,
+) -> tuple:
+    """The two sides of scenario ``name``'s room for ``n_agents`` where the user gave at most one (None: not given).
+    A given side stays; the others are ``default``'s where that room holds the agents (so a room that held them
+    before never changes), else the scenario's own room for ``n_agents``, never shorter than ``default``."""
+    check_choice("layout", name, layouts)
+    proposed = tuple(d if g is None else g for g, d in zip(given, default, strict=True))
+    if name not in rooms:
+        return proposed
+    capacity, own_room = rooms[name]
+    if capacity(*proposed, *capacity_args) >= n_agents:
+        return proposed
+    own = own_room(n_agents, *room_args)
+    return tuple(max(o, d) if g is None else g for g, o, d in zip(given, own, default, strict=True))
+
+
 def grid_room(
     name: str,
     n_agents: int,
@@ -75,22 +93,8 @@ def grid_room(
     default: tuple[int, int],
     min_start_goal_cells: int = 4,
 ) -> tuple[int, int]:
-    """(rows, cols) of the grid scenario ``name`` for ``n_agents`` where the user gave at most one side (None:
-    not given). A given side stays; the others are ``default``'s where that room holds the agents (so a room
-    that held them before never changes), else the scenario's own room for ``n_agents``, never shorter than
-    ``default``."""
-    check_choice("layout", name, GRID_LAYOUTS)
-    proposed = (default[0] if rows is None else rows, default[1] if cols is None else cols)
-    if name not in GRID_ROOMS:
-        return proposed
-    capacity, own_room = GRID_ROOMS[name]
-    if capacity(*proposed, min_start_goal_cells) >= n_agents:
-        return proposed
-    own_rows, own_cols = own_room(n_agents)
-    return (
-        max(own_rows, default[0]) if rows is None else rows,
-        max(own_cols, default[1]) if cols is None else cols,
-    )
+    """(rows, cols) of the grid scenario ``name`` for ``n_agents`` (``_room``)."""
+    return _room(GRID_ROOMS, GRID_LAYOUTS, name, n_agents, (rows, cols), default, (min_start_goal_cells,), ())
 
 
 def plane_room(
@@ -102,22 +106,9 @@ def plane_room(
     agent_radius_m: float = 0.3,
     goal_radius_m: float = 0.3,
 ) -> tuple[float, float]:
-    """(length_m, width_m) of the continuous scenario ``name`` for ``n_agents`` where the user gave at most
-    one side (None: not given). A given side stays; the others are ``default``'s where that room holds the
-    agents (so a room that held them before never changes), else the scenario's own room for ``n_agents``,
-    never shorter than ``default``."""
-    check_choice("layout", name, PLANE_LAYOUTS)
-    proposed = (default[0] if length_m is None else length_m, default[1] if width_m is None else width_m)
-    if name not in PLANE_ROOMS:
-        return proposed
-    capacity, own_room = PLANE_ROOMS[name]
-    if capacity(*proposed, agent_radius_m, goal_radius_m) >= n_agents:
-        return proposed
-    own_length_m, own_width_m = own_room(n_agents, agent_radius_m, goal_radius_m)
-    return (
-        max(own_length_m, default[0]) if length_m is None else length_m,
-        max(own_width_m, default[1]) if width_m is None else width_m,
-    )
+    """(length_m, width_m) of the continuous scenario ``name`` for ``n_agents`` (``_room``)."""
+    radii = (agent_radius_m, goal_radius_m)
+    return _room(PLANE_ROOMS, PLANE_LAYOUTS, name, n_agents, (length_m, width_m), default, radii, radii)
 
 
 def plane_layout(
