@@ -27,8 +27,8 @@ import pandas as pd
 import torch
 
 from sidewalk.envs.layouts import SCENARIOS
+from sidewalk.paths import CONFIG_DIR
 
-ROOT = Path(__file__).resolve().parents[1]
 DOMAINS = ("discrete", "continuous")
 TEAMS = ("random", "planner")
 PLANNER = {"discrete": "dijkstra", "continuous": "prm"}
@@ -44,11 +44,11 @@ METRICS = {
 
 def scenario_overrides(scenario: str, domain: str) -> list[str]:
     """The config overrides of a scenario: its preset where one exists, else the env group's defaults."""
-    preset = ROOT / "conf" / "experiment" / f"{scenario}_{domain}.yaml"
+    preset = CONFIG_DIR / "experiment" / f"{scenario}_{domain}.yaml"
     if preset.exists():
         return [f"+experiment={scenario}_{domain}"]
     if scenario != "sidewalk":
-        raise ValueError(f"scenario {scenario!r} has no preset {preset.relative_to(ROOT)}")
+        raise ValueError(f"scenario {scenario!r} has no preset conf/experiment/{preset.name}")
     return [f"env={domain}", f"algo={'dqn' if domain == 'discrete' else 'trpo'}"]
 
 
@@ -112,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", nargs="+", type=float, default=[0.0], help="noise levels (grid: action noise)")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=256, help="episodes (batched worlds) per seed")
-    parser.add_argument("--out", type=Path, default=ROOT / "results" / "reference" / "scenarios")
+    parser.add_argument("--out", type=Path, default=Path("results") / "reference" / "scenarios")
     args = parser.parse_args(argv)
     if args.episodes < 1 or any(seed < 0 for seed in args.seeds) or any(n < 0 for n in args.noise):
         parser.error(f"--episodes must be ≥ 1, --seeds and --noise ≥ 0; got {args.episodes}, {args.seeds}, {args.noise}")

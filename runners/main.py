@@ -31,6 +31,7 @@ from omegaconf.errors import OmegaConfBaseException
 from sidewalk import run_folder
 from sidewalk.config import register_schemas, validate
 from sidewalk.hydra_callbacks import ERROR_FILE
+from sidewalk.paths import CONFIG_DIR
 
 register_schemas()
 
@@ -38,7 +39,7 @@ HEADLINE = ("ego/success_rate", "ego/collision_rate", "ego/return", "other/succe
             "success_rate", "collision_rate", "return", "episode_length")
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="config")
 def main(cfg: DictConfig) -> float | None:
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)

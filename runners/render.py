@@ -33,7 +33,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+from sidewalk.paths import CONFIG_DIR
+
 FORMATS = (".gif", ".mp4")
 HOLD_S = 1.0  # the last frame stays this long, so the outcome can be seen before the GIF loops
 
@@ -160,7 +161,7 @@ def scripted_world(domain: str, opponent: str, seed: int, overrides: list[str]):
     register_schemas()
     # The algorithm is irrelevant here, but validation checks it against the domain, so pick one that fits.
     algo = "dqn" if domain == "discrete" else "trpo"
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
         cfg = compose(
             config_name="config",
             overrides=[f"env={domain}", f"opponent={opponent}", f"algo={algo}", f"seed={seed}", *overrides],
@@ -264,7 +265,7 @@ def outcome(info: dict) -> str:
 def gallery_overrides(scenario: str, domain: str) -> list[str]:
     """The config overrides of one gallery entry: its preset where it exists, else its row of ``GALLERY``."""
     preset = f"{scenario}_{domain}"
-    if (ROOT / "conf" / "experiment" / f"{preset}.yaml").exists():
+    if (CONFIG_DIR / "experiment" / f"{preset}.yaml").exists():
         return [f"+experiment={preset}", f"env.layout={scenario}", "noise=0"]
     return [f"env.layout={scenario}", *GALLERY.get((scenario, domain), ())]
 
@@ -387,9 +388,9 @@ def summarise(outcome_words: str) -> str:
 
 
 def _shown_path(path: Path) -> str:
-    """``path`` relative to the repository where it lies inside it, for commands in docs."""
+    """``path`` relative to the current folder where it lies inside it, for commands in docs."""
     try:
-        return str(path.resolve().relative_to(ROOT))
+        return str(path.resolve().relative_to(Path.cwd()))
     except ValueError:
         return str(path)
 
@@ -524,7 +525,7 @@ def main(argv: list[str] | None = None) -> int:
         ego = args.ego or "random"
         out = (
             args.out
-            or ROOT / "results" / "renders" / f"{args.env}_{ego}_vs_{args.opponent}_seed{args.seed}.gif"
+            or Path("results") / "renders" / f"{args.env}_{ego}_vs_{args.opponent}_seed{args.seed}.gif"
         )
     if out.suffix == ".mp4" and shutil.which("ffmpeg") is None:
         parser.error(

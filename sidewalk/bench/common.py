@@ -15,8 +15,10 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-CONF_DIR = REPO_ROOT / "conf"
+from sidewalk.paths import CONFIG_DIR
+
+REPO_ROOT = Path(__file__).resolve().parents[2]  # a clone: the benchmarks time git worktrees of it
+CONF_DIR = CONFIG_DIR
 
 
 @contextmanager

@@ -45,8 +45,9 @@ from typing import Any
 import pandas as pd
 
 from sidewalk.bench.common import REPO_ROOT, is_commit, revision_trees
+from sidewalk.paths import RUNNERS_DIR
 
-SCRIPT = REPO_ROOT / "runners" / "reproduce.sh"
+SCRIPT = RUNNERS_DIR / "reproduce.sh"
 WARMUP = 10  # iterations left out of ms/iteration: DQN's first updates start after 1000 frames (8 iterations)
 PROBE_ITERATIONS = 40
 PROBE_PERIOD = 20  # iterations between the probe's evaluations and checkpoints
