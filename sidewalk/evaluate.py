@@ -91,104 +91,166 @@ def run_episodes(
     """
     if seed is not None:
         env.set_seed(seed)
-    core = env.core
-    n_worlds, n_agents = core.num_envs, core.n_agents
-    device = env.device
-    grid = not torch.is_floating_point(core.observation_spec["agents", "state"].zero())
-
-    def positions(world: TensorDictBase) -> torch.Tensor:
-        return world.get("state")[..., :2].to(torch.float32)
-
     td = env.reset()
-    start = positions(td.get("world"))
-    goal = td.get(("world", "goal")).to(torch.float32)
-    # The continuous agent arrives anywhere within the goal radius, so its shortest path is that much shorter.
-    shortest = (goal - start).abs().sum(-1) if grid else ((goal - start).norm(dim=-1) - core.params.goal_radius_m).clamp(min=0)
-    finished = torch.zeros(n_worlds, dtype=torch.bool, device=device)
-    returns = torch.zeros(n_worlds, n_agents, device=device)
-    costs = torch.zeros(n_worlds, n_agents, device=device)
-    shielded = torch.zeros(n_worlds, n_agents, device=device) if getattr(env, "shield", False) else None
-    travelled = torch.zeros(n_worlds, n_agents, device=device)
-    agent_length = torch.zeros(n_worlds, n_agents, device=device)
-    world_length = torch.zeros(n_worlds, device=device)
-    min_separation = torch.full((n_worlds,), math.inf, device=device)
-    final_info = {key: torch.zeros(n_worlds, n_agents, dtype=torch.bool, device=device) for key in INFO_KEYS}
-    previous = start
-    trajectory = [start[:record_trajectories].cpu().numpy()] if record_trajectories else []
-    pair = ~torch.eye(n_agents, dtype=torch.bool, device=device)
-    # The last DEADLOCK_WINDOW positions, as a ring, and the positions one and two steps back (waiting).
-    window = min(DEADLOCK_WINDOW, core.params.max_steps)
-    recent = start.unsqueeze(0).repeat(window, 1, 1, 1)
-    two_back = start
-    wait_steps = torch.zeros(n_worlds, n_agents, device=device)
-    deadlocked = torch.zeros(n_worlds, dtype=torch.bool, device=device)
-    still_within, stood_within = (DEADLOCK_CELLS, 0.0) if grid else (DEADLOCK_M, WAIT_M)
-
+    tally = _EpisodeTally.begin(env, td.get("world"), record_trajectories)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        for step in range(core.params.max_steps + 1):
+        for step in range(env.core.params.max_steps + 1):
             if policy is None:
                 td = env.rand_action(td)
             else:
-                td = act_on_distinct(policy, td, ~finished) if deterministic else policy(td)
+                td = act_on_distinct(policy, td, ~tally.finished) if deterministic else policy(td)
             td = env.step(td)
             nxt = td.get("next")
-            world = nxt.get("world")
-            running = ~finished
-            was_active = ~torch.stack([final_info[k] for k in ("reached_goal", "collided_agent", "collided_wall")]).any(0)
-            now = positions(world)
-            moved = (now - previous).abs().sum(-1) if grid else (now - previous).norm(dim=-1)
-            live = running.unsqueeze(-1)
-            returns += world.get("reward").squeeze(-1) * live
-            costs += world.get("cost").squeeze(-1) * live
-            if shielded is not None:
-                shielded += world.get("shield").squeeze(-1) * live
-            travelled += moved * live
-            info = {key: world.get(("info", key)).squeeze(-1) for key in INFO_KEYS}
-            in_world = world.get("present").squeeze(-1)
-            agent_length += (was_active & live).float()
-            world_length += running.float()
-            stood = _distance(now, two_back, grid) <= stood_within
-            wait_steps += (stood & was_active & live & ~info["reached_goal"]).float()
-            two_back, recent[step % window] = previous, now
-            if n_agents > 1:
-                gaps = torch.cdist(now, now)
-                both = in_world.unsqueeze(-1) & in_world.unsqueeze(-2) & pair
-                closest = torch.where(both, gaps, torch.full_like(gaps, math.inf)).flatten(1).min(-1).values
-                min_separation = torch.where(running, torch.minimum(min_separation, closest), min_separation)
-            for key in INFO_KEYS:
-                final_info[key] = torch.where(live, info[key], final_info[key])
-            if record_trajectories:
-                frame = now[:record_trajectories].clone()
-                frame[finished[:record_trajectories]] = float("nan")
-                trajectory.append(frame.cpu().numpy())
-            previous = now
-            ending = running & nxt.get("done").squeeze(-1)
-            if bool(ending.any()):
-                # Deadlocked: the world timed out while every unfinished agent stayed near where it ended.
-                timed_out = info["timed_out"]
-                spread = _distance(recent, now.unsqueeze(0), grid).amax(0)  # (B, N)
-                stuck = ((spread <= still_within) | ~timed_out).all(-1) & timed_out.any(-1)
-                deadlocked |= ending & stuck & (step + 1 >= window)
-            finished = finished | nxt.get("done").squeeze(-1)
-            if bool(finished.all()):
+            tally.add_step(step, nxt.get("world"), nxt.get("done").squeeze(-1))
+            if bool(tally.finished.all()):
                 break
             td = step_mdp(td)
+    return tally.record(ego=getattr(env, "ego", None))
 
-    return EpisodeRecord(
-        info={key: value.cpu().numpy() for key, value in final_info.items()},
-        returns=returns.cpu().numpy(),
-        costs=costs.cpu().numpy(),
-        agent_length=agent_length.cpu().numpy(),
-        world_length=world_length.cpu().numpy(),
-        travelled=travelled.cpu().numpy(),
-        shortest=shortest.cpu().numpy(),
-        min_separation=min_separation.cpu().numpy(),
-        wait_steps=wait_steps.cpu().numpy(),
-        shielded=shielded.cpu().numpy() if shielded is not None else None,
-        deadlocked=deadlocked.cpu().numpy(),
-        trajectories=np.stack(trajectory) if record_trajectories else None,
-        ego=getattr(env, "ego", None),
-    )
+
+def _positions(world: TensorDictBase) -> torch.Tensor:
+    """Float (B, N, 2): the agents' positions (grid: row, col; continuous: x, y)."""
+    return world.get("state")[..., :2].to(torch.float32)
+
+
+@dataclass
+class _EpisodeTally:
+    """What ``run_episodes`` adds up as the episodes run, per world (B,) or per agent (B, N); ``record`` turns it
+    into an ``EpisodeRecord``."""
+
+    grid: bool
+    shortest: torch.Tensor
+    finished: torch.Tensor  # (B,): the world's episode has ended
+    returns: torch.Tensor
+    costs: torch.Tensor
+    shielded: torch.Tensor | None  # None: the view has no shield
+    travelled: torch.Tensor
+    agent_length: torch.Tensor
+    world_length: torch.Tensor
+    min_separation: torch.Tensor
+    final_info: dict[str, torch.Tensor]
+    previous: torch.Tensor  # positions one step back
+    two_back: torch.Tensor  # positions two steps back (waiting)
+    recent: torch.Tensor  # the last ``DEADLOCK_WINDOW`` positions, as a ring (deadlocks)
+    wait_steps: torch.Tensor
+    deadlocked: torch.Tensor
+    pair: torch.Tensor  # (N, N): two different agents
+    record_trajectories: int
+    trajectory: list[np.ndarray]
+
+    @classmethod
+    def begin(cls, env: EnvBase, world: TensorDictBase, record_trajectories: int) -> _EpisodeTally:
+        """Nothing added yet, for ``env`` just reset to ``world`` (the reset's ``"world"`` entry)."""
+        core = env.core
+        n_worlds, n_agents, device = core.num_envs, core.n_agents, env.device
+        grid = not torch.is_floating_point(core.observation_spec["agents", "state"].zero())
+        start = _positions(world)
+        goal = world.get("goal").to(torch.float32)
+        # The continuous agent arrives anywhere within the goal radius, so its shortest path is that much shorter.
+        shortest = (
+            (goal - start).abs().sum(-1) if grid
+            else ((goal - start).norm(dim=-1) - core.params.goal_radius_m).clamp(min=0)
+        )
+
+        def per_agent() -> torch.Tensor:
+            return torch.zeros(n_worlds, n_agents, device=device)
+
+        return cls(
+            grid=grid,
+            shortest=shortest,
+            finished=torch.zeros(n_worlds, dtype=torch.bool, device=device),
+            returns=per_agent(),
+            costs=per_agent(),
+            shielded=per_agent() if getattr(env, "shield", False) else None,
+            travelled=per_agent(),
+            agent_length=per_agent(),
+            world_length=torch.zeros(n_worlds, device=device),
+            min_separation=torch.full((n_worlds,), math.inf, device=device),
+            final_info={key: torch.zeros(n_worlds, n_agents, dtype=torch.bool, device=device) for key in INFO_KEYS},
+            previous=start,
+            two_back=start,
+            recent=start.unsqueeze(0).repeat(min(DEADLOCK_WINDOW, core.params.max_steps), 1, 1, 1),
+            wait_steps=per_agent(),
+            deadlocked=torch.zeros(n_worlds, dtype=torch.bool, device=device),
+            pair=~torch.eye(n_agents, dtype=torch.bool, device=device),
+            record_trajectories=record_trajectories,
+            trajectory=[start[:record_trajectories].cpu().numpy()] if record_trajectories else [],
+        )
+
+    def add_step(self, step: int, world: TensorDictBase, done: torch.Tensor) -> None:
+        """Add step ``step`` (from 0), whose ``"world"`` entry is ``world`` and whose worlds ``done`` (B,) ended."""
+        running = ~self.finished
+        was_active = ~torch.stack([self.final_info[k] for k in ("reached_goal", "collided_agent", "collided_wall")]).any(0)
+        now = _positions(world)
+        live = running.unsqueeze(-1)
+        info = {key: world.get(("info", key)).squeeze(-1) for key in INFO_KEYS}
+        self._add_totals(world, now, running, was_active)
+        self._add_waiting(step, now, was_active & live & ~info["reached_goal"])
+        if self.pair.shape[0] > 1:
+            self._add_separation(now, world.get("present").squeeze(-1), running)
+        for key in INFO_KEYS:
+            self.final_info[key] = torch.where(live, info[key], self.final_info[key])
+        if self.record_trajectories:
+            frame = now[: self.record_trajectories].clone()
+            frame[self.finished[: self.record_trajectories]] = float("nan")
+            self.trajectory.append(frame.cpu().numpy())
+        self.previous = now
+        ending = running & done
+        if bool(ending.any()):
+            self._add_deadlocks(step, now, ending, info["timed_out"])
+        self.finished = self.finished | done
+
+    def _add_totals(
+        self, world: TensorDictBase, now: torch.Tensor, running: torch.Tensor, was_active: torch.Tensor
+    ) -> None:
+        """Each running world's rewards, costs, shield interventions, distance travelled and steps."""
+        live = running.unsqueeze(-1)
+        self.returns += world.get("reward").squeeze(-1) * live
+        self.costs += world.get("cost").squeeze(-1) * live
+        if self.shielded is not None:
+            self.shielded += world.get("shield").squeeze(-1) * live
+        self.travelled += _distance(now, self.previous, self.grid) * live
+        self.agent_length += (was_active & live).float()
+        self.world_length += running.float()
+
+    def _add_waiting(self, step: int, now: torch.Tensor, counted: torch.Tensor) -> None:
+        """A wait step for the ``counted`` agents that ended the step where they were two steps before; the
+        positions two steps back and in the deadlock ring move on."""
+        stood = _distance(now, self.two_back, self.grid) <= (0.0 if self.grid else WAIT_M)
+        self.wait_steps += (stood & counted).float()
+        self.two_back, self.recent[step % self.recent.shape[0]] = self.previous, now
+
+    def _add_separation(self, now: torch.Tensor, in_world: torch.Tensor, running: torch.Tensor) -> None:
+        """The smallest distance between two agents in each running world so far."""
+        gaps = torch.cdist(now, now)
+        both = in_world.unsqueeze(-1) & in_world.unsqueeze(-2) & self.pair
+        closest = torch.where(both, gaps, torch.full_like(gaps, math.inf)).flatten(1).min(-1).values
+        self.min_separation = torch.where(running, torch.minimum(self.min_separation, closest), self.min_separation)
+
+    def _add_deadlocks(self, step: int, now: torch.Tensor, ending: torch.Tensor, timed_out: torch.Tensor) -> None:
+        """Deadlocked: the world timed out while every unfinished agent stayed near where it ended."""
+        still_within = DEADLOCK_CELLS if self.grid else DEADLOCK_M
+        spread = _distance(self.recent, now.unsqueeze(0), self.grid).amax(0)  # (B, N)
+        stuck = ((spread <= still_within) | ~timed_out).all(-1) & timed_out.any(-1)
+        self.deadlocked |= ending & stuck & (step + 1 >= self.recent.shape[0])
+
+    def record(self, ego: int | None) -> EpisodeRecord:
+        """The episodes' outcomes as NumPy arrays."""
+        return EpisodeRecord(
+            info={key: value.cpu().numpy() for key, value in self.final_info.items()},
+            returns=self.returns.cpu().numpy(),
+            costs=self.costs.cpu().numpy(),
+            agent_length=self.agent_length.cpu().numpy(),
+            world_length=self.world_length.cpu().numpy(),
+            travelled=self.travelled.cpu().numpy(),
+            shortest=self.shortest.cpu().numpy(),
+            min_separation=self.min_separation.cpu().numpy(),
+            wait_steps=self.wait_steps.cpu().numpy(),
+            shielded=self.shielded.cpu().numpy() if self.shielded is not None else None,
+            deadlocked=self.deadlocked.cpu().numpy(),
+            trajectories=np.stack(self.trajectory) if self.record_trajectories else None,
+            ego=ego,
+        )
 
 
 def _distance(a: torch.Tensor, b: torch.Tensor, grid: bool) -> torch.Tensor:
@@ -203,7 +265,7 @@ def act_on_distinct(policy: TensorDictModuleBase, td: TensorDictBase, running: t
     Finished worlds (still stepped by the batched env, their outcome already recorded) get the outputs of the first
     running world, a valid action that is never scored. At noise 0 the 256 evaluation worlds of the grid play one
     episode, so the policy runs on one image instead of 256 (the conv stack is most of an evaluation step); with
-    distinct inputs it costs a ``torch.unique`` more (~0.5 ms at 256 worlds). A deterministic policy gives equal
+    distinct inputs it costs a ``torch.unique`` more. A deterministic policy gives equal
     outputs for equal inputs, so this changes no result beyond floating-point differences between batch sizes.
     """
     in_keys = list(policy.in_keys)

@@ -293,7 +293,7 @@ def test_image_spec_is_bounded_0_255_with_one_items_bounds():
     env = DiscreteSidewalkEnv(num_envs=64, n_agents=4, layout="random", seed=0)
     spec = env.observation_spec[AGENT_GROUP, "observation"]
     assert isinstance(spec, Bounded) and spec.dtype == torch.uint8 and spec.shape == (64, 4, 1, 14, 30)
-    assert spec.space.batch_size == (64, 4) and spec.space._low.shape == (1, 14, 30)
+    assert spec.space.batch_size == (64, 4) and spec.space.low.shape == (64, 4, 1, 14, 30)
     assert (spec.space.low == 0).all() and (spec.space.high == 255).all()
     clone = env.observation_spec.clone()[AGENT_GROUP, "observation"]
     assert type(clone) is UniformBounded and clone.space.batch_size == (64, 4) and clone == spec

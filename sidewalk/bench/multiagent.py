@@ -1,7 +1,7 @@
 """Training frames/s of our IPPO self-play on the continuous sidewalk beside TorchRL's own MAPPO/IPPO example on VMAS
 ``navigation``, at 4096 worlds and two agents, with the same networks, batch, epochs and minibatches.
 
-    python runners/bench.py multiagent                          # 4096 worlds, 1 and 2 threads (~12 min)
+    python runners/bench.py multiagent                          # 4096 worlds, 1 and 2 threads
     python runners/bench.py multiagent --num-envs 1024 --threads 1 --ma-iterations 5
     python -m sidewalk.bench.multiagent --num-envs 64 --ma-steps 2 --ma-iterations 1 --ma-warmup 0
 
@@ -30,7 +30,7 @@ as the example has them (they do not change the work of an iteration): γ 0.9, �
 max grad norm 40. Logging and evaluation are off (the script runs both only with a logger backend), as ours runs
 without logger or evaluation.
 
-What differs, and stays: the envs (ours: unicycles, 12 observation features an agent, walls, crashes, episodes that
+What differs, and stays: the envs (ours: unicycles, 16 observation features an agent, walls, crashes, episodes that
 end at different steps, the finished worlds reset in one batched op; VMAS: holonomic point masses with 12 lidar rays,
 18 features an agent, every world timing out together at step 100 and reset at once, ``reset_at`` one world at a
 time otherwise), and each learner's own small parts: ours normalises observations (``RunningNorm``: one pass over
@@ -44,30 +44,17 @@ Timing: an iteration is ``next(collector)`` (collection) then the update (GAE, e
 timed together; after ``warmup`` untimed iterations, the median of ``iterations`` timed ones gives frames/s
 (``frames_per_batch`` / median seconds; a frame is a world-step holding both agents' transitions, as TorchRL's
 collector counts them). Both learners run in this process at each thread count, back to back
-(``torch.set_num_threads``); ``cpu %`` is the CPU time the process got over the timed wall-clock (~100 at 1 thread on
-an idle machine, up to ~200 at 2; lower means other work shared the cores), ``load`` the 1-minute load average then.
+(``torch.set_num_threads``); ``cpu %`` is the CPU time the process got over the timed wall-clock (100 per thread
+on an idle machine; lower means other work shared the cores), ``load`` the 1-minute load average then.
 On shared cores the two learners may get different shares of them (other jobs start and stop): ``frames/cpu-s``
 (timed frames over the process's CPU seconds) and its ratio ``ours/peer cpu`` hold the comparison steadier, and at
 1 thread they are about the frames/s an idle core would give.
 
 Threads on shared cores: at 2 threads, with other busy processes on the 2 cores, OpenMP's default wait policy (a
-thread spins at each parallel region's barrier, then sleeps) makes small ops wait for a descheduled partner thread:
-here, at load ~4.5, a gradient step of either learner took ~0.5 s instead of ~10 ms (256 worlds: 13 frames/s for
-both), and a 3-layer MLP step at minibatch 128 took 159 ms at 2 threads, 2.1 ms at 1 -- 1.4 ms at 2 with
-``OMP_WAIT_POLICY=PASSIVE`` in the environment (read when the OpenMP runtime starts, so set it before Python starts;
-1 thread is unaffected). The printout ends with the policy the run had.
-
-Measured (2026-11-24, ``OMP_WAIT_POLICY=PASSIVE python runners/bench.py multiagent``, 2 cores shared with two
-training runs, load 3.5-4.3 during the first three rows and 1.7 in the last; 16,384 frames an iteration, 2,560
-gradient steps; ``frames/cpu-s`` derived as frames/s ÷ cpu share, the column came after the run):
-
-    threads   peer frames/s (cpu %)   ours frames/s (cpu %)   ours ÷ peer   per CPU-second: peer / ours / ratio
-    1         314 (57)                281 (51)                0.89          555 / 549 / 0.99
-    2         356 (57)                637 (100)               1.79          620 / 638 / 1.03
-
-The update is > 99 % of an iteration in both (collection: 0.14-0.24 s of 26-58 s), 10-12 ms of CPU a gradient step
-in both: at these settings the two learners train at the same speed per CPU-second, and the wall-clock ratios
-measure mostly which learner the other jobs left more CPU to.
+thread spins at each parallel region's barrier, then sleeps) makes small ops wait for a descheduled partner thread,
+so a gradient step of either learner slows by orders of magnitude; run with ``OMP_WAIT_POLICY=PASSIVE`` in the
+environment (read when the OpenMP runtime starts, so set it before Python starts; 1 thread is unaffected). The
+printout ends with the policy the run had. Measured figures: docs/guide/benchmarks.md, "IPPO beside TorchRL's multi-agent example".
 """
 
 from __future__ import annotations
@@ -190,20 +177,52 @@ def peer_learner(num_envs: int, frames_per_batch: int, epochs: int, minibatch_si
     epochs, minibatch size and hidden widths; None when VMAS is not installed."""
     if importlib.util.find_spec("vmas") is None:
         return None
-    from torchrl.envs.libs.vmas import VmasEnv
-
     ex = PEER_EXAMPLE
     device = "cpu"
     torch.manual_seed(seed)
+    env = _peer_env(num_envs, seed, device)
+    observation_size = env.observation_spec["agents", "observation"].shape[-1]
+    policy, value_module = _peer_networks(env, observation_size, hidden, device)
+    collector = Collector(
+        env, policy, device=device, storing_device=device, frames_per_batch=frames_per_batch, total_frames=-1,
+        postproc=DoneTransform(reward_key=env.reward_key, done_keys=env.done_keys),
+        auto_register_policy_transforms=False,  # no recurrent policy here: only silences a FutureWarning
+    )
+    replay_buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(frames_per_batch, device=device),
+                                           sampler=SamplerWithoutReplacement(), batch_size=minibatch_size)
+    loss_module = ClipPPOLoss(actor_network=policy, critic_network=value_module, clip_epsilon=ex["clip_epsilon"],
+                              entropy_coeff=ex["entropy_eps"], normalize_advantage=False)
+    loss_module.set_keys(reward=env.reward_key, action=env.action_key, done=("agents", "done"),
+                         terminated=("agents", "terminated"))
+    loss_module.make_value_estimator(ValueEstimators.GAE, gamma=ex["gamma"], lmbda=ex["lmbda"])
+    optim = torch.optim.Adam(loss_module.parameters(), ex["lr"])
+    update = _peer_update(collector, replay_buffer, loss_module, optim, epochs, frames_per_batch // minibatch_size)
+    return Learner(
+        name="TorchRL example IPPO", env_name=f"VMAS {PEER_SCENARIO}", collector=collector, update=update,
+        frames_per_batch=frames_per_batch, minibatches=epochs * (frames_per_batch // minibatch_size),
+        observation_size=observation_size, parameters=sum(p.numel() for p in loss_module.parameters()),
+    )
+
+
+def _peer_env(num_envs: int, seed: int, device: str) -> TransformedEnv:
+    """The example's ``VmasEnv`` on ``navigation`` with our two agents, its episode reward summed."""
+    from torchrl.envs.libs.vmas import VmasEnv
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # VMAS's own deprecation notes
-        env = VmasEnv(scenario=PEER_SCENARIO, num_envs=num_envs, continuous_actions=True, max_steps=ex["max_steps"],
-                      device=device, seed=seed, n_agents=N_AGENTS)
-    env = TransformedEnv(env, RewardSum(in_keys=[env.reward_key], out_keys=[("agents", "episode_reward")]))
-    observation_size = env.observation_spec["agents", "observation"].shape[-1]
+        env = VmasEnv(scenario=PEER_SCENARIO, num_envs=num_envs, continuous_actions=True,
+                      max_steps=PEER_EXAMPLE["max_steps"], device=device, seed=seed, n_agents=N_AGENTS)
+    return TransformedEnv(env, RewardSum(in_keys=[env.reward_key], out_keys=[("agents", "episode_reward")]))
+
+
+def _peer_networks(
+    env: TransformedEnv, observation_size: int, hidden: Sequence[int], device: str
+) -> tuple[ProbabilisticActor, ValueOperator]:
+    """The example's policy (``MultiAgentMLP`` + ``NormalParamExtractor`` in a ``TanhNormal`` actor) and critic,
+    at our hidden widths; built in the example's order, so one seed gives the same weights."""
+    ex = PEER_EXAMPLE
     network = {"n_agents": env.n_agents, "share_params": ex["shared_parameters"], "device": device,
                "depth": len(hidden), "num_cells": list(hidden), "activation_class": nn.Tanh}
-
     actor_net = nn.Sequential(
         MultiAgentMLP(n_agent_inputs=observation_size,
                       n_agent_outputs=2 * env.full_action_spec_unbatched[env.action_key].shape[-1],
@@ -224,47 +243,41 @@ def peer_learner(num_envs: int, frames_per_batch: int, epochs: int, minibatch_si
     )
     critic = MultiAgentMLP(n_agent_inputs=observation_size, n_agent_outputs=1,
                            centralised=ex["centralised_critic"], **network)
-    value_module = ValueOperator(module=critic, in_keys=[("agents", "observation")])
+    return policy, ValueOperator(module=critic, in_keys=[("agents", "observation")])
 
-    collector = Collector(
-        env, policy, device=device, storing_device=device, frames_per_batch=frames_per_batch, total_frames=-1,
-        postproc=DoneTransform(reward_key=env.reward_key, done_keys=env.done_keys),
-        auto_register_policy_transforms=False,  # no recurrent policy here: only silences a FutureWarning
-    )
-    replay_buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(frames_per_batch, device=device),
-                                           sampler=SamplerWithoutReplacement(), batch_size=minibatch_size)
-    loss_module = ClipPPOLoss(actor_network=policy, critic_network=value_module, clip_epsilon=ex["clip_epsilon"],
-                              entropy_coeff=ex["entropy_eps"], normalize_advantage=False)
-    loss_module.set_keys(reward=env.reward_key, action=env.action_key, done=("agents", "done"),
-                         terminated=("agents", "terminated"))
-    loss_module.make_value_estimator(ValueEstimators.GAE, gamma=ex["gamma"], lmbda=ex["lmbda"])
-    optim = torch.optim.Adam(loss_module.parameters(), ex["lr"])
 
-    def update(tensordict_data: TensorDictBase) -> None:  # the script's loop body, logging off
+def _peer_update(
+    collector: Collector,
+    replay_buffer: TensorDictReplayBuffer,
+    loss_module: ClipPPOLoss,
+    optim: torch.optim.Optimizer,
+    epochs: int,
+    minibatches_per_epoch: int,
+) -> Callable[[TensorDictBase], None]:
+    """The example's loop body, logging off: GAE over the batch, then ``epochs`` × ``minibatches_per_epoch``
+    minibatches from the replay buffer, each with the loss, backward, clipping and an Adam step."""
+
+    def update(tensordict_data: TensorDictBase) -> None:
         with torch.no_grad():
             loss_module.value_estimator(tensordict_data, params=loss_module.critic_network_params,
                                         target_params=loss_module.target_critic_network_params)
         replay_buffer.extend(tensordict_data.reshape(-1))
         training_tds = []
         for _ in range(epochs):
-            for _ in range(frames_per_batch // minibatch_size):
+            for _ in range(minibatches_per_epoch):
                 subdata = replay_buffer.sample()
                 loss_vals = loss_module(subdata)
                 training_tds.append(loss_vals.detach())
                 loss_value = loss_vals["loss_objective"] + loss_vals["loss_critic"] + loss_vals["loss_entropy"]
                 loss_value.backward()
-                total_norm = torch.nn.utils.clip_grad_norm_(loss_module.parameters(), ex["max_grad_norm"])
+                total_norm = torch.nn.utils.clip_grad_norm_(loss_module.parameters(), PEER_EXAMPLE["max_grad_norm"])
                 training_tds[-1].set("grad_norm", total_norm.mean())
                 optim.step()
                 optim.zero_grad()
         collector.update_policy_weights_()
         torch.stack(training_tds)
 
-    return Learner(
-        name="TorchRL example IPPO", env_name=f"VMAS {PEER_SCENARIO}", collector=collector, update=update,
-        frames_per_batch=frames_per_batch, minibatches=epochs * (frames_per_batch // minibatch_size),
-        observation_size=observation_size, parameters=sum(p.numel() for p in loss_module.parameters()),
-    )
+    return update
 
 
 def measure(learner: Learner, iterations: int, warmup: int) -> dict[str, float]:

@@ -1,6 +1,6 @@
 """Env-steps/s of our random-layout cores as the number of agents grows, beside VMAS ``navigation`` at the same N.
 
-    python runners/bench.py scenarios                      # N = 2, 4, 8, 16 at 4096 worlds, 1 thread (~3 min)
+    python runners/bench.py scenarios                      # N = 2, 4, 8, 16 at 4096 worlds, 1 thread
     python runners/bench.py scenarios --agents 2 8 --num-envs 1024 --threads 1 2
 
 Three cores of ours run the ``random`` layout (starts and goals drawn per world and per episode) with ``n_agents=N``:
@@ -25,8 +25,7 @@ batched ``vmas.simulator.environment.Environment`` (``vmas.make_env``), not Torc
 ``step(get_random_actions())``, then ``reset_at(i, return_observations=False)`` for each done world and
 ``get_from_scenario`` once for the observations of all worlds. VMAS has no batched partial reset (``reset_at``
 takes one index, ``reset()`` resets every world), so a Python loop over the done worlds is the least it costs.
-``VmasEnv._reset`` runs that same loop but visits all B entries of the ``_reset`` mask in Python (~8 µs each, up to
-~30 ms a step at 4096 worlds here: 0-30 % slower than the bare loop at N = 2 and 8 in A/B runs), and adds TensorDict
+``VmasEnv._reset`` runs that same loop but visits all B entries of the ``_reset`` mask in Python, and adds TensorDict
 overheads that ours pay: the bare ``Environment`` is VMAS at its fastest, so the ratio is conservative for us.
 
 Under random actions a ``navigation`` episode ends only at its ``max_steps`` timeout (300 steps, as ours), and
@@ -39,35 +38,20 @@ Each measurement warms up (≥ 3 steps and ``seconds``), then times ``repeats`` 
 keeps the median. Columns: env-steps/s (worlds × steps / s) of ours and of VMAS, their ratio (target ≥ 10 at every
 N), the cost per agent-step (µs per world-step per agent) and that cost divided by the one at the smallest N of the
 run (target at N = 16 over N = 2: ≤ 2), the share of worlds reset a step, and the CPU share the process got while
-timed (~100 % at 1 thread on an idle machine; lower means other work shared the cores and the rates are low and
+timed (100 % at 1 thread on an idle machine; lower means other work shared the cores and the rates are low and
 noisy, the ratios less so since each N measures VMAS and ours back to back).
 
 How our cores scale with N: one step is a fixed sequence of tensor operations over (B, N) tensors; the per-agent
 work (moves, walls, rewards, goals, resets) is O(N) per world, and the agent-agent collision checks of ``_advance``
 (grid: shared cells and swaps; continuous: the swept closest approach of every pair) build (N, N, B) tensors,
 O(N²) per world, as does every observation that lists all agents for each agent (the vector and continuous ones,
-N × 5N and N × 6N). The grid image is N ego images of the whole room, O(N · cells), and the room grows with N:
-O(N²) per world with a large constant (26 KB a world-step at N = 16). A reset observes only the worlds it resets
-(with auto-reset, a few a step) and gives the others the last output's observations; the continuous pair check
-computes each unordered pair once (the relation is symmetric bit for bit). At 1 thread and 4096 worlds (2 cores
-shared with training runs, which were idle while timed: cpu ~100 %; 2026-11-23; ``python runners/bench.py
-scenarios``, median of three runs per cell):
-
-                    µs per agent-step, N = 2 / 4 / 8 / 16    N=16 ÷ N=2    ours ÷ VMAS, N = 2 / 4 / 8 / 16
-    grid vector     0.70 / 0.56 / 0.48 / 0.50                0.76          11 / 33 / 67 / 126
-    grid image      1.18 / 0.84 / 0.89 / 1.57                1.39          6.5 / 20 / 34 / 39
-    continuous      0.71 / 0.63 / 0.58 / 0.63                0.89          11 / 28 / 59 / 112
-    VMAS navigation 7.7  / 17   / 32   / 63                  8.1
-
-Up to N = 8 the fixed cost of a step (TorchRL and TensorDict bookkeeping, ~100 small kernels, one layout draw for
-the worlds reset) is shared by more agents, so the cost per agent-step falls; at N = 16 the O(N²) parts show (the
-continuous core's pair checks and all-agent observations) but stay within 2× of N = 2. The image's step at N = 16
-is mostly memory: two fresh 106 MB batches of images a step (the step's and the reset's), whose buffers come from
-NumPy, which asks Linux for huge pages, ~3× faster to fill than torch's 4 KiB pages (before both changes its
-N=16 ÷ N=2 was 3.4). VMAS's cost per agent-step grows 8× (Python loops over agents and agent pairs in its
-collision and lidar code), so our lead grows with N: ≥ 10× from N = 4 on; at N = 2, where a step is mostly fixed
-cost, the image core misses 10× (three runs: image 5.3-8.7, grid vector 8.7-11.6, continuous 10-15; VMAS at N = 2
-ran 64-66 k steps/s).
+N × 6N and N × 8N). The grid image is N ego images of the whole room, O(N · cells), and the room grows with N:
+O(N²) per world with a large constant. A reset observes only the worlds it resets (with auto-reset, a few a step)
+and gives the others the last output's observations; the continuous pair check computes each unordered pair once
+(the relation is symmetric bit for bit). At small N the fixed cost of a step (TorchRL and TensorDict bookkeeping,
+small kernels, one layout draw for the worlds reset) dominates, so the cost per agent-step falls as N grows until
+the O(N²) parts show; VMAS loops over agents and agent pairs in Python, so its cost per agent-step grows with N.
+Measured figures: docs/guide/benchmarks.md, "Scenarios at N agents".
 """
 
 from __future__ import annotations

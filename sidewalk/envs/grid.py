@@ -11,9 +11,11 @@ from torchrl.data import Bounded, Categorical
 from torchrl.data.tensor_specs import BoundedDiscrete
 
 from sidewalk._checks import check_choice, check_int, check_range
+from sidewalk._torchrl import set_uniform_box
 from sidewalk.envs.base import COSTS, SidewalkEnvBase, new_output
 from sidewalk.envs.layouts import GridLayout, RandomGridLayout, grid_layout, grid_room
 from sidewalk.envs.rewards import RewardParams
+from sidewalk.envs.shield import grid_shield
 
 # (d_row, d_col) of UP, DOWN, LEFT, RIGHT; rows run across the sidewalk, columns along it.
 ACTIONS = ("UP", "DOWN", "LEFT", "RIGHT")
@@ -50,8 +52,8 @@ class UniformBounded(BoundedDiscrete, metaclass=_KeepSubclass):
     agent, as the image's 0..255.
 
     When a ``Composite`` takes a ``Bounded`` it keeps one batch item's bounds if all items' agree, and checks that
-    with ``torch.allclose`` over the full-size bounds: ~6 s each for the images of 4096 worlds × 16 agents. Here the
-    check is exact (for integers the same answer as ``allclose``'s) and ~50× faster; otherwise, and on any later
+    with ``torch.allclose`` over the full-size bounds, seconds for the images of thousands of worlds. Here the check
+    is exact (for integers the same answer as ``allclose``'s) and far cheaper; otherwise, and on any later
     registration, TorchRL's own runs. Clones, indexing and reshapes keep this class (they call ``self.__class__``).
     """
 
@@ -61,8 +63,7 @@ class UniformBounded(BoundedDiscrete, metaclass=_KeepSubclass):
         if box.batch_size is None and dims and box.low.shape[:dims] == batch_size:
             low, high = box.low.flatten(0, dims - 1), box.high.flatten(0, dims - 1)
             if all(bool((bounds.amin(0) == bounds.amax(0)).all()) for bounds in (low, high)):
-                # What TorchRL's ContinuousBox.batch_size setter stores once its check passes.
-                box._low, box._high, box._batch_size = low[0].clone(), high[0].clone(), batch_size
+                set_uniform_box(box, low[0].clone(), high[0].clone(), batch_size)
                 return
         super()._register_batch_size(batch_size)
 
@@ -71,7 +72,7 @@ class UniformBounded(BoundedDiscrete, metaclass=_KeepSubclass):
 class DiscreteParams:
     """Parameters of the discrete Sidewalk, with SPEC defaults (7 × 15 grid, 2 px per cell, 300-step timeout)."""
 
-    layout: str = "sidewalk"  # a scenario of sidewalk.envs.layouts.SCENARIOS
+    layout: str = "sidewalk"  # a registered scenario (sidewalk.envs.layouts.scenario_names())
     n_agents: int = 2  # agents in the scenario (sidewalk and zipper: 2)
     min_start_goal_cells: int = 4  # random layout: least Manhattan distance from an agent's start to its goal
     width_cells: int = 7
@@ -302,42 +303,8 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         return reached, hit_wall, hit_agent, shaping
 
     def shield_action(self, action: torch.Tensor, shielded: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The grid's shield (see the base class). A move is wall-safe when it stays on the grid and off interior
-        walls, and agent-safe when it ends outside every cell another agent can hold after the step: its cell (it may
-        stay parked at its goal, or swap with us) and, while it moves, its four neighbours (any of its moves, noise
-        included: four cells are cheap to rule out). An unsafe action gives way to a safe one, nearest first: the
-        two perpendicular moves (the one that brings the agent closer to its goal first), then the reverse. Where
-        no move is agent-safe, a wall-safe one is taken: the shield never steps into a wall while a free cell is
-        next to the agent (a grid cell always has one unless walls enclose it). The env's action noise acts after the
-        shield, so with ``noise`` > 0 a replaced action can still hit a wall."""
-        n_moves = len(ACTIONS)
-        row, col = self._row.unsqueeze(-1), self._col.unsqueeze(-1)  # (B, N, 1)
-        target_row, target_col = row + self._move_row, col + self._move_col  # (B, N, 4)
-        wall_safe = (target_row >= 0) & (target_row < self.rows) & (target_col >= 0) & (target_col < self.cols)
-        target = target_row.clamp(0, self.rows - 1) * self.cols + target_col.clamp(0, self.cols - 1)
-        if self._has_blocked:
-            wall_safe = wall_safe & ~self._blocked[target]
-        # Cells another agent may hold after the step: (B, N, 5) -- its own, then its four neighbours while active.
-        reach_row = torch.cat([row, torch.where(self._active.unsqueeze(-1), target_row, row)], -1)
-        reach_col = torch.cat([col, torch.where(self._active.unsqueeze(-1), target_col, col)], -1)
-        reach = torch.where(self._present.unsqueeze(-1), reach_row * self.cols + reach_col, -1)
-        # (B, i, a, j, c): agent i's move a lands on cell c that agent j may hold.
-        hits = target.unsqueeze(-1).unsqueeze(-1) == reach.unsqueeze(1).unsqueeze(1)
-        hits = hits & self._not_self.squeeze(-1)[None, :, None, :, None]
-        agent_safe = ~hits.flatten(-2).any(-1)
-        safe = wall_safe & agent_safe
-        proposed = action.unsqueeze(-1)  # (B, N, 1)
-        moves = torch.arange(n_moves, device=self.device)
-        same = moves == proposed
-        # Perpendicular: UP/DOWN (0, 1) against LEFT/RIGHT (2, 3).
-        perpendicular = (moves // 2) != (proposed // 2)
-        to_goal = (self._goal_row.unsqueeze(-1) - target_row).abs() + (self._goal_col.unsqueeze(-1) - target_col).abs()
-        closer = to_goal < ((self._goal_row - self._row).abs() + (self._goal_col - self._col).abs()).unsqueeze(-1)
-        score = 64 * safe + 32 * wall_safe + 8 * same + 4 * perpendicular + 2 * closer
-        chosen = score.argmax(-1)
-        guard = shielded.unsqueeze(0) & self._active
-        intervened = guard & (chosen != action)
-        return torch.where(intervened, chosen, action), intervened
+        """The grid's shield (see the base class; the rule: ``sidewalk.envs.shield.grid_shield``)."""
+        return grid_shield(self, action, shielded)
 
     def _centres(self) -> tuple[torch.Tensor, torch.Tensor]:
         return self._row.t().to(torch.float32), self._col.t().to(torch.float32)

@@ -15,6 +15,7 @@ from sidewalk.envs.base import COSTS, SidewalkEnvBase, new_output
 from sidewalk.envs.geodesic import GeodesicDistance, blocked
 from sidewalk.envs.layouts import PlaneLayout, RandomPlaneLayout, plane_layout, plane_room
 from sidewalk.envs.rewards import RewardParams
+from sidewalk.envs.shield import unicycle_shield
 
 STATE_FIELDS = ("x", "y", "v", "theta")
 OBSERVATION_FIELDS = ("x", "y", "v", "theta", "goal_x", "goal_y", "active", "present")
@@ -26,15 +27,13 @@ NOISY_FIELDS = 6
 class ContinuousParams:
     """Parameters of the continuous Sidewalk.
 
-    The paper fixes the bounds (|acceleration| ≤ 1 m/s², |turn| ≤ π/8 per step, |v| ≤ 1 m/s). The geometry is
-    ours (SPEC §1, revised 2026-11-23): at dt = 0.2 s the 3 m straight walk on the 4 m × 3 m sidewalk takes ~17
-    steps, about the grid's 14, so the paper's one set of reward constants makes walking pay in both domains, and
-    at 3 m wide a planner has room to go around an agent that holds the centre line. The first geometry (10 m ×
-    1.5 m, dt 0.1 s: a ~91-step walk, where crashing at once returns more than walking) is
-    ``length_m=10, width_m=1.5, dt_s=0.1``.
+    The paper fixes the bounds (``|acceleration| ≤ 1`` m/s², ``|turn| ≤ π/8`` per step, ``|v| ≤ 1`` m/s). The
+    geometry is ours (SPEC §1): the straight walk takes about as many steps as the grid's, so the paper's one set of
+    reward constants makes walking pay in both domains, and the width leaves a planner room to go around an agent on
+    the centre line (``length_m=10, width_m=1.5, dt_s=0.1``, a walk so long that crashing at once paid more, did not).
     """
 
-    layout: str = "sidewalk"  # a scenario of sidewalk.envs.layouts.SCENARIOS
+    layout: str = "sidewalk"  # a registered scenario (sidewalk.envs.layouts.scenario_names())
     n_agents: int = 2  # agents in the scenario (sidewalk and zipper: 2)
     min_start_goal_m: float = 1.5  # random layout: least distance from an agent's start to its goal
     length_m: float = 4.0
@@ -118,7 +117,7 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         p, device, n = self.params, self.device, self.n_agents
         self._action_high = torch.tensor([p.max_accel_mps2, p.max_turn_rad], device=device)
         # Coordinates live in separate (B, N) tensors and pairwise agent checks run agent-major, (N, N, B), with the
-        # base's _not_self: broadcasting over a long last axis is ~10× faster than over trailing axes of size 2.
+        # base's _not_self: broadcasting over a long last axis is faster than over trailing axes of size 2.
         self._ego_order = (torch.arange(n, device=device)[:, None] + torch.arange(n, device=device)) % n
         # The swept contact of agents i and j is that of j and i, bit for bit: it is computed for the pairs i < j
         # and copied to rows i·N + j and j·N + i of the (N·N, B) result, whose diagonal rows are True.
@@ -182,7 +181,7 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
     def _check_finite(self, action: torch.Tensor) -> None:
         """Raise on a NaN or infinite action: the bounds would pass NaN through and the world's state would turn
         NaN without a word (an inactive agent's too: NaN · 0 is NaN). The sum is finite exactly when every entry
-        is (bounded actions cannot overflow it): one reduction and one sync, ~4× cheaper than ``isfinite().all()``."""
+        is (bounded actions cannot overflow it): one reduction and one sync, cheaper than ``isfinite().all()``."""
         if math.isfinite(action.sum().item()):
             return
         bad = ~torch.isfinite(action).all(-1)  # (B, N)
@@ -262,121 +261,9 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         pairs.index_copy_(0, self._pair_rows, torch.cat([contact, contact]))
         return pairs.view(n, n, batch)
 
-    SHIELD_LEVELS = 5  # the shield's candidate corrections: a 5 × 5 grid of (acceleration, turn) within the bounds
-
     def shield_action(self, action: torch.Tensor, shielded: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The continuous shield (see the base class). Each candidate action -- the proposed one, braking at the
-        proposed turn, then a 5 × 5 grid of (acceleration, turn) over the bounds -- is stepped on the known
-        dynamics. It is wall-safe when the disc after the step, the point where full braking from there would stop it
-        and the midpoint between them stay inside the walls and off the boxes: a one-step look-ahead alone lets an
-        agent at full speed reach a place from which it cannot stop before the wall (0.4 m of braking from 1 m/s at
-        the SPEC's bounds). It is agent-safe when the agent's path in the step keeps two radii from everywhere another
-        agent can be after the step: a disc of radius (|v| + a_max·dt)·dt around it while it moves (its worst case
-        over every action and any action noise, which the bounds clip), its own disc when parked. With action noise
-        ±ε a candidate must be safe at the four corners of its noise box too (the step is monotone in acceleration
-        and, over turns this small, in the turn), so noise the shield can absorb does not defeat it.
-
-        The nearest (in units of the bounds) candidate that is safe under noise replaces an unsafe action; where
-        none is, the nearest safe without noise; then the nearest wall-safe one; then braking. A one-step look-ahead
-        cannot always leave a way out (an agent cornered by the other's worst case), and noise larger than the
-        room it leaves defeats it: tests/test_safety.py measures how often a collision still happens."""
-        p = self.params
-        batch = self.num_envs
-        agents = shielded.nonzero().squeeze(-1)
-        # Every (world, shielded agent) pair, as flat rows; most proposed actions are safe, so the candidates are
-        # looked at only for the pairs whose proposed action is not (a tenth of a step's pairs or fewer).
-        world = torch.arange(batch, device=self.device).repeat(len(agents))
-        agent = agents.repeat_interleave(batch)
-        high = self._action_high.view(2, 1, 1)
-        proposed = torch.maximum(torch.minimum(action[world, agent].t(), high[:, 0]), -high[:, 0])  # (2, M)
-        unsafe = ~self._robustly_safe(proposed.unsqueeze(1), world, agent)[0] & self._active[world, agent]
-        intervened = torch.zeros_like(self._active)
-        if not bool(unsafe.any()):
-            return action, intervened
-        rows = unsafe.nonzero().squeeze(-1)
-        world, agent, proposed = world[rows], agent[rows], proposed[:, rows]
-        levels = torch.linspace(-1.0, 1.0, self.SHIELD_LEVELS, device=self.device)
-        grid = (torch.cartesian_prod(levels, levels) * self._action_high).t()  # (2, G)
-        brake = torch.stack([-torch.sign(self._speed[world, agent]) * p.max_accel_mps2, proposed[1]])
-        candidates = torch.cat(
-            [proposed.unsqueeze(1), brake.unsqueeze(1), grid.unsqueeze(-1).expand(-1, -1, len(rows))], 1
-        )  # (2, K, m)
-        wall_safe, clearance = self._look_ahead(candidates, world, agent)
-        safe = wall_safe & (clearance >= 0)
-        robust = self._robustly_safe(candidates, world, agent, nominal=safe)
-
-        # Tiers 4 apart, and within a tier at most 1.75 of preference: the nearest candidate where it is safe, else
-        # the one that keeps farthest from the others' reach (the way out of a corner, if the next step has one).
-        distance = ((candidates - proposed.unsqueeze(1)) / high).square().sum(0) / 8.0  # within [0, 1]
-        within = torch.where(safe, -distance, 1.5 * clearance.clamp(-1.0, 0.0) - 0.25 * distance)
-        score = 16.0 * robust + 8.0 * safe + 4.0 * wall_safe + within
-        score[1] += 1e-6  # among equals (nothing safe), brake
-        chosen = score.argmax(0)  # (m,)
-        replaced = chosen != 0
-        replacement = candidates.gather(1, chosen.view(1, 1, -1).expand(2, 1, -1)).squeeze(1).t()  # (m, 2)
-        safe_action = action.clone()
-        safe_action[world, agent] = torch.where(replaced.unsqueeze(-1), replacement, action[world, agent])
-        intervened[world, agent] = replaced
-        return safe_action, intervened
-
-    def _robustly_safe(
-        self, candidates: torch.Tensor, world: torch.Tensor, agent: torch.Tensor, nominal: torch.Tensor | None = None
-    ) -> torch.Tensor:
-        """Bool (K, M): candidate (2, K, M) of agent ``agent`` in world ``world`` is safe without noise (``nominal``,
-        if given, says so already) and at the four corners of its action-noise box."""
-        if nominal is None:
-            wall_safe, clearance = self._look_ahead(candidates, world, agent)
-            nominal = wall_safe & (clearance >= 0)
-        noise = self.params.noise
-        if noise == 0.0:
-            return nominal
-        high = self._action_high.view(2, 1, 1)
-        robust = nominal
-        for corner in ((1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)):
-            noisy = candidates + torch.tensor(corner, device=self.device).view(2, 1, 1) * noise
-            wall_safe, clearance = self._look_ahead(torch.maximum(torch.minimum(noisy, high), -high), world, agent)
-            robust = robust & wall_safe & (clearance >= 0)
-        return robust
-
-    def _look_ahead(
-        self, candidates: torch.Tensor, world: torch.Tensor, agent: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """For candidate actions (2, K, M) -- (acceleration, turn) within the bounds -- of agent ``agent[m]`` in world
-        ``world[m]``: bool (K, M), the candidate is wall-safe, and float (K, M), the clearance in metres its path
-        keeps from the nearest other agent's reach (agent-safe when ≥ 0; ``shield_action`` says what both mean).
-        Rows run last: broadcasting over the long last axis is ~10× faster than over trailing axes of 2."""
-        p = self.params
-        x0, y0 = self._x[world, agent], self._y[world, agent]  # (M,)
-        heading = self._heading[world, agent] + candidates[1]
-        speed = (self._speed[world, agent] + candidates[0] * p.dt_s).clamp(-p.max_speed_mps, p.max_speed_mps)
-        cos, sin = torch.cos(heading), torch.sin(heading)
-        dx, dy = speed * cos * p.dt_s, speed * sin * p.dt_s  # (K, M): the step
-        x1, y1 = x0 + dx, y0 + dy
-        # Full braking lowers |v| by a·dt a step: it covers dt·Σ_k max(|v| - k·a·dt, 0) before it stops.
-        step_drop = p.max_accel_mps2 * p.dt_s
-        k = torch.floor(speed.abs() / step_drop)
-        stopping = p.dt_s * (k * speed.abs() - step_drop * k * (k + 1) / 2) * torch.sign(speed)
-        xs, ys = x1 + stopping * cos, y1 + stopping * sin
-        (x_low, x_high), (y_low, y_high) = self._x_range, self._y_range
-        wall_safe = (xs >= x_low) & (xs <= x_high) & (ys >= y_low) & (ys <= y_high)
-        wall_safe &= (x1 >= x_low) & (x1 <= x_high) & (y1 >= y_low) & (y1 <= y_high)
-        if self._boxes.numel():
-            for px, py in ((x1, y1), (xs, ys), ((x1 + xs) / 2, (y1 + ys) / 2)):
-                wall_safe &= ~self._touches_box(px, py)
-
-        # (K, N, M): the closest approach of the agent's path in the step to agent j's centre, j over the world's agents.
-        to_x = (self._x.index_select(0, world).t() - x0).unsqueeze(0)  # (1, N, M)
-        to_y = (self._y.index_select(0, world).t() - y0).unsqueeze(0)
-        dx, dy = dx.unsqueeze(1), dy.unsqueeze(1)
-        along = ((to_x * dx + to_y * dy) / (dx.square() + dy.square()).clamp_min(1e-12)).clamp(0.0, 1.0)
-        gap_sq = (to_x - along * dx).square() + (to_y - along * dy).square()
-        # How far agent j can get in the step (its worst case), while it moves.
-        reach = ((self._speed.abs() + step_drop) * p.dt_s * self._active).index_select(0, world).t()  # (N, M)
-        keep = 2 * p.agent_radius_m + reach
-        others = torch.arange(self.n_agents, device=self.device).unsqueeze(-1) != agent  # (N, M)
-        other = others & self._present.index_select(0, world).t()
-        clearance = torch.where(other, gap_sq.sqrt() - keep, torch.full_like(gap_sq, math.inf)).amin(1)
-        return wall_safe, clearance
+        """The continuous shield (see the base class; the rule: ``sidewalk.envs.shield.unicycle_shield``)."""
+        return unicycle_shield(self, action, shielded)
 
     def _centres(self) -> tuple[torch.Tensor, torch.Tensor]:
         return self._x.t(), self._y.t()

@@ -204,11 +204,18 @@ def crossplay_section(
     ``folder``: where the matrix's ``crossplay.csv`` is (linked for every cell's numbers)."""
     figures = figures if figures is not None else []
     sub = heading.split(" ", 1)[0] + "#"
+    md = [heading, ""] + _how_it_was_made(frame, meta, out, folder) + _conventions_lines(meta, sub)
+    for metric, (title, cmap) in HEATMAP_METRICS.items():
+        md += _metric_lines(frame, metric, title, cmap, figures_dir, prefix, out, figures, numbers, sub)
+    return md + _skipped_lines(frame, sub) + _notes_lines(meta, sub)
+
+
+def _how_it_was_made(frame: pd.DataFrame, meta: dict[str, Any], out: Path, folder: Path | None) -> list[str]:
+    """The command, the matrix's size and world, and how to read its cells."""
     rows = _ordered(frame["row_run"])
     partners = _ordered(frame["partner"])
-    skipped = frame[frame["skipped"] != ""]
     episodes = meta.get("episodes", frame["episodes"].dropna().max() if frame["episodes"].notna().any() else "?")
-    md = [heading, ""]
+    md = []
     if meta.get("command"):
         md += ["Made by:", "", "```", meta["command"], "```", ""]
     world = ", ".join(
@@ -241,64 +248,95 @@ def crossplay_section(
     ]
     if folder is not None:
         md.append(f"- Every cell's numbers: [`{CROSSPLAY_CSV}`]({shown_path(folder / CROSSPLAY_CSV, out)}).")
-    md.append("")
-    if meta.get("conventions"):
-        md += [
-            f"{sub} Conventions",
-            "",
-            (
-                "Each run's policy playing every agent on the same worlds: the side the agents pass on (\"left\": both "
-                "keep to their own left) and its share of the episodes, and who swerves most "
-                "(`sidewalk.crossplay.convention`)."
-            ),
-            "",
-            "| run | seed | passing side | share | yielder |",
-            "| --- | --- | --- | --- | --- |",
-        ]
-        md += [
-            f"| {c['row_label']} | {c['row_seed']} | {c['passing_side']} | {c['passing_fraction']:.2f} | {c['yielder']} |"
-            for c in meta["conventions"]
-        ]
-        md.append("")
-    for metric, (title, cmap) in HEATMAP_METRICS.items():
-        mean, pairs = condition_table(frame, metric)
-        by_condition = figures_dir / f"{prefix}_by_condition_{metric}.png"
-        by_run = figures_dir / f"{prefix}_{metric}.png"
-        draw_heatmap(mean, f"Cross-play by condition: {title}", by_condition, cmap, pairs=pairs,
-                     scripted=scripted_count(frame))
-        draw_heatmap(run_table(frame, metric), f"Cross-play, every run: {title}", by_run, cmap,
-                     outlined=self_pairs(frame), scripted=scripted_count(frame))
-        figures += [by_condition, by_run]
-        md += [f"{sub} {title[0].upper()}{title[1:]}", ""]
-        md += _markdown_table(mean, pairs) + [""]
-        md += [
-            f"![cross-play by condition: {title}]({shown_path(by_condition, out)})",
-            "",
-            f"![cross-play, every run: {title}]({shown_path(by_run, out)})",
-            "",
-        ]
-        if numbers is not None:
-            for row_label, values in mean.iterrows():
-                for partner_label, value in values.items():
-                    numbers.add(
-                        "crossplay", None, f"row: {row_label}; partner: {partner_label}", metric, "mean",
-                        float(value), int(pairs.loc[row_label, partner_label]),
-                        "mean over pairs of runs, self-pairs left out",
-                    )
-    if not skipped.empty:
-        md += [f"{sub} Cells not played", "", "| row | partner | reason |", "| --- | --- | --- |"]
-        md += [f"| `{r.row_run}` | `{r.partner}` | {r.skipped} |" for r in skipped.itertuples()]
-        md.append("")
-    md += [f"{sub} What it shows", ""]
-    notes = meta.get("notes", "").strip()
+    return md + [""]
+
+
+def _conventions_lines(meta: dict[str, Any], sub: str) -> list[str]:
+    """The convention each run's policy follows with itself, where the matrix recorded them."""
+    if not meta.get("conventions"):
+        return []
+    md = [
+        f"{sub} Conventions",
+        "",
+        (
+            "Each run's policy playing every agent on the same worlds: the side the agents pass on (\"left\": both "
+            "keep to their own left) and its share of the episodes, and who swerves most "
+            "(`sidewalk.crossplay.convention`)."
+        ),
+        "",
+        "| run | seed | passing side | share | yielder |",
+        "| --- | --- | --- | --- | --- |",
+    ]
     md += [
+        f"| {c['row_label']} | {c['row_seed']} | {c['passing_side']} | {c['passing_fraction']:.2f} | {c['yielder']} |"
+        for c in meta["conventions"]
+    ]
+    return md + [""]
+
+
+def _metric_lines(
+    frame: pd.DataFrame,
+    metric: str,
+    title: str,
+    cmap: str,
+    figures_dir: Path,
+    prefix: str,
+    out: Path,
+    figures: list[Path],
+    numbers: NumberLog | None,
+    sub: str,
+) -> list[str]:
+    """One metric's subsection: the conditions' table, its heatmap and every run's (drawn into ``figures_dir`` as
+    ``<prefix>_*.png`` and appended to ``figures``); the table's numbers go to ``numbers``."""
+    mean, pairs = condition_table(frame, metric)
+    by_condition = figures_dir / f"{prefix}_by_condition_{metric}.png"
+    by_run = figures_dir / f"{prefix}_{metric}.png"
+    draw_heatmap(mean, f"Cross-play by condition: {title}", by_condition, cmap, pairs=pairs,
+                 scripted=scripted_count(frame))
+    draw_heatmap(run_table(frame, metric), f"Cross-play, every run: {title}", by_run, cmap,
+                 outlined=self_pairs(frame), scripted=scripted_count(frame))
+    figures += [by_condition, by_run]
+    md = [f"{sub} {title[0].upper()}{title[1:]}", ""]
+    md += _markdown_table(mean, pairs) + [""]
+    md += [
+        f"![cross-play by condition: {title}]({shown_path(by_condition, out)})",
+        "",
+        f"![cross-play, every run: {title}]({shown_path(by_run, out)})",
+        "",
+    ]
+    if numbers is not None:
+        for row_label, values in mean.iterrows():
+            for partner_label, value in values.items():
+                numbers.add(
+                    "crossplay", None, f"row: {row_label}; partner: {partner_label}", metric, "mean",
+                    float(value), int(pairs.loc[row_label, partner_label]),
+                    "mean over pairs of runs, self-pairs left out",
+                )
+    return md
+
+
+def _skipped_lines(frame: pd.DataFrame, sub: str) -> list[str]:
+    """The cells not played, with the reason each was skipped."""
+    skipped = frame[frame["skipped"] != ""]
+    if skipped.empty:
+        return []
+    md = [f"{sub} Cells not played", "", "| row | partner | reason |", "| --- | --- | --- |"]
+    md += [f"| `{r.row_run}` | `{r.partner}` | {r.skipped} |" for r in skipped.itertuples()]
+    return md + [""]
+
+
+def _notes_lines(meta: dict[str, Any], sub: str) -> list[str]:
+    """What the matrix shows: its ``notes.md``, or where to write them."""
+    notes = meta.get("notes", "").strip()
+    return [
+        f"{sub} What it shows",
+        "",
         notes
         or "_Not written yet: write what the matrix shows (do policies trained with a scripted partner coordinate "
         f"with a learned one? do self-play seeds coordinate with each other?) into `{NOTES}` beside "
         f"`{CROSSPLAY_CSV}` and redraw (`python runners/crossplay.py --redraw DIR`)._",
         "",
     ]
-    return md
 
 
 def write_crossplay_report(folder: str | Path) -> Path:

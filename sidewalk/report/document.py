@@ -53,6 +53,10 @@ class ReportResult:
     crossplay: list[Path] = field(default_factory=list)  # cross-play folders whose matrix the report includes
 
 
+# The columns of curves.csv: every plotted point of the report's figures.
+CURVES_COLUMNS = ("figure", "condition_id", "condition", "agent", "metric", "x_axis", "x", "mean", "se", "seeds")
+
+
 def write_report(
     paths: Sequence[str | Path],
     out: str | Path | None = None,
@@ -69,11 +73,7 @@ def write_report(
     folder is found at all.
     """
     settings = settings or Settings()
-    preamble_text = ""
-    if preamble is not None:
-        if not Path(preamble).is_file():
-            raise FileNotFoundError(f"preamble {preamble} is not a file; give a Markdown file")
-        preamble_text = Path(preamble).read_text().strip()
+    preamble_text = _read_preamble(preamble)
     paths = [Path(p) for p in paths]
     if not paths:
         raise ValueError("give at least one run folder or sweep folder")
@@ -84,24 +84,10 @@ def write_report(
             f"no run folder (a folder with {CONFIG} and {METRICS}) or cross-play matrix under "
             f"{', '.join(map(str, paths))}"
         )
-    if out is None:
-        base = paths[0] if len(paths) == 1 else Path(os.path.commonpath([p.resolve() for p in paths]))
-        out = base / "report"
-    out = Path(out)
+    out = _clean_output_folder(paths, out)
     figures_dir = out / "figures"
-    figures_dir.mkdir(parents=True, exist_ok=True)
-    for stale in figures_dir.glob("*.png"):  # figures of an earlier report that this one may not redraw
-        stale.unlink()
     log.info("reading %d run folder(s)", len(folders))
-
-    runs: list[Run] = []
-    skipped: list[Skipped] = []
-    for folder in folders:
-        try:
-            runs.append(load_run(folder))
-        except RunFolderError as error:
-            skipped.append(Skipped(folder, str(error)))
-            log.warning("skipped %s: %s", folder, error)
+    runs, skipped = _load_runs(folders)
     conditions = group_conditions(runs)
     log.info("%d usable run(s) in %d condition(s); %d skipped", len(runs), len(conditions), len(skipped))
 
@@ -120,40 +106,64 @@ def write_report(
     ]
     if preamble_text:
         md += [preamble_text, ""]
-
     md += _runs_section(conditions, numbers, out)
     md += _skipped_section(skipped)
     md += claims_section(conditions, numbers)
     md += ["## Paper figures", ""]
     for spec in PAPER_FIGURES:
-        md += paper_figure_section(
-            spec, conditions, settings, figures_dir, figures, numbers, curves_rows, notes
-        )
+        md += paper_figure_section(spec, conditions, settings, figures_dir, figures, numbers, curves_rows, notes)
     md += trajectory_section(conditions, settings, figures_dir, figures, notes)
     md += family_sections(conditions, settings, figures_dir, figures, numbers, curves_rows)
     md += crossplay_sections(crossplay, figures_dir, out, figures, numbers)
     md += _statistics_section(settings, safety=any(records_safety(c) for c in conditions))
 
+    report_md = _write_files(out, md, numbers, curves_rows)
+    log.info("wrote %s (%d figure(s))", report_md, len(figures))
+    return ReportResult(out, report_md, figures, skipped, notes, conditions, crossplay)
+
+
+def _read_preamble(preamble: str | Path | None) -> str:
+    """The preamble's text ("" without one); raises ``FileNotFoundError`` if it is not a file."""
+    if preamble is None:
+        return ""
+    if not Path(preamble).is_file():
+        raise FileNotFoundError(f"preamble {preamble} is not a file; give a Markdown file")
+    return Path(preamble).read_text().strip()
+
+
+def _clean_output_folder(paths: Sequence[Path], out: str | Path | None) -> Path:
+    """The report's folder (``out``, or ``report/`` in the paths' folder), with an empty ``figures/`` in it."""
+    if out is None:
+        base = paths[0] if len(paths) == 1 else Path(os.path.commonpath([p.resolve() for p in paths]))
+        out = base / "report"
+    out = Path(out)
+    figures_dir = out / "figures"
+    figures_dir.mkdir(parents=True, exist_ok=True)
+    for stale in figures_dir.glob("*.png"):  # figures of an earlier report that this one may not redraw
+        stale.unlink()
+    return out
+
+
+def _load_runs(folders: Sequence[Path]) -> tuple[list[Run], list[Skipped]]:
+    """The run folders that load, and those that do not with the reason."""
+    runs: list[Run] = []
+    skipped: list[Skipped] = []
+    for folder in folders:
+        try:
+            runs.append(load_run(folder))
+        except RunFolderError as error:
+            skipped.append(Skipped(folder, str(error)))
+            log.warning("skipped %s: %s", folder, error)
+    return runs, skipped
+
+
+def _write_files(out: Path, md: list[str], numbers: NumberLog, curves_rows: list[dict[str, Any]]) -> Path:
+    """Write ``report.md``, ``report.csv`` and ``curves.csv`` into ``out``; returns the path of ``report.md``."""
     report_md = out / "report.md"
     report_md.write_text("\n".join(md) + "\n")
     numbers.frame().to_csv(out / "report.csv", index=False)
-    pd.DataFrame(
-        curves_rows,
-        columns=[
-            "figure",
-            "condition_id",
-            "condition",
-            "agent",
-            "metric",
-            "x_axis",
-            "x",
-            "mean",
-            "se",
-            "seeds",
-        ],
-    ).to_csv(out / "curves.csv", index=False)
-    log.info("wrote %s (%d figure(s))", report_md, len(figures))
-    return ReportResult(out, report_md, figures, skipped, notes, conditions, crossplay)
+    pd.DataFrame(curves_rows, columns=list(CURVES_COLUMNS)).to_csv(out / "curves.csv", index=False)
+    return report_md
 
 
 def _runs_section(conditions: Sequence[Condition], numbers: NumberLog, out: Path) -> list[str]:

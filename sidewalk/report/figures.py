@@ -359,31 +359,7 @@ def trajectory_section(
     if settings.trajectory_episodes == 0 or settings.max_trajectory_panels == 0:
         notes.append(f"{title} skipped: trajectories switched off")
         return md + ["_Skipped: switched off (--trajectories 0)._", ""]
-    # The paper draws Fig. 10 from its opponent and reward comparisons; those conditions come first.
-    ordered: list[Condition] = []
-    for spec in (PAPER_FIGURES[0], PAPER_FIGURES[3], PAPER_FIGURES[1]):
-        for group in figure_panels(spec, conditions):
-            ordered += [c for c in group if c not in ordered]
-    ordered += [c for c in conditions if c not in ordered]
-    replays: list[tuple[Condition, Replay]] = []
-    problems: list[str] = []
-    for condition in ordered:
-        if len(replays) == settings.max_trajectory_panels:
-            break
-        run = representative_run(condition)
-        if run is None:
-            problems.append(f"{condition.ident}: no {POLICY_FILES}")
-            continue
-        try:
-            log.info("replaying %s (%s, seed %d)", condition.ident, condition.label, run.seed)
-            replays.append((condition, replay(run, settings.trajectory_episodes)))
-        except UnsafeFile:
-            raise  # a file that would run code is refused outright, not skipped like a stale checkpoint
-        except Exception as error:  # noqa: BLE001 (a checkpoint of another code version must not sink the report)
-            problems.append(
-                f"{condition.ident}: could not replay {run.path}: {type(error).__name__}: {error}"
-            )
-            log.warning("could not replay %s: %s", run.path, error)
+    replays, problems = _replay_representatives(_paper_comparisons_first(conditions), settings)
     if not replays:
         note = f"{title} skipped: no run with a loadable {POLICY_FILES}" + (
             f" ({'; '.join(problems)})" if problems else ""
@@ -404,27 +380,8 @@ def trajectory_section(
     ]
     for domain in DOMAIN_ORDER:
         chosen = [(c, r) for c, r in replays if r.domain == domain]
-        if not chosen:
-            continue
-        # The longest, thinnest world drawn sets the grid, so that every world in the figure stays legible.
-        aspect = max(world_aspect(replay_) for _, replay_ in chosen)
-        columns, panel_width_in = trajectory_columns(aspect)
-        columns = min(columns, len(chosen))
-        rows = math.ceil(len(chosen) / columns)
-        # Each panel: the world at its aspect ratio, plus room for the two-line title and the legend below.
-        size = (panel_width_in * columns, (panel_width_in / aspect + 0.8) * rows + 0.5)
-        figure = Figure(figsize=size, layout="constrained")  # makes room for each panel's legend below it
-        axes = figure.subplots(rows, columns, squeeze=False).ravel()
-        for ax, (condition, replay_) in zip(axes, chosen):
-            draw_trajectories(ax, replay_, condition)
-        for ax in axes[len(chosen) :]:
-            ax.set_visible(False)
-        figure.suptitle(f"{title}, {domain}")
-        path = figures_dir / f"fig10_trajectories_{domain}.png"
-        _save(figure, path)
-        figures.append(path)
-        log.info("drew %s", path.name)
-        md += [f"![{title}, {domain}](figures/{path.name})", ""]
+        if chosen:
+            md += _trajectory_figure(f"{title}, {domain}", domain, chosen, figures_dir, figures)
     for condition, replay_ in replays:
         check = "match" if replay_.matches_summary else "DIFFER from"
         md.append(
@@ -433,6 +390,67 @@ def trajectory_section(
         )
     md += [f"- {p}" for p in problems]
     return md + [""]
+
+
+def _paper_comparisons_first(conditions: Sequence[Condition]) -> list[Condition]:
+    """``conditions`` with those of the paper's opponent and reward comparisons first, from which it draws Fig. 10."""
+    ordered: list[Condition] = []
+    for spec in (PAPER_FIGURES[0], PAPER_FIGURES[3], PAPER_FIGURES[1]):
+        for group in figure_panels(spec, conditions):
+            ordered += [c for c in group if c not in ordered]
+    return ordered + [c for c in conditions if c not in ordered]
+
+
+def _replay_representatives(
+    ordered: Sequence[Condition], settings: Settings
+) -> tuple[list[tuple[Condition, Replay]], list[str]]:
+    """The replays of the first ``settings.max_trajectory_panels`` conditions whose representative run replays, and
+    why each run before them could not."""
+    replays: list[tuple[Condition, Replay]] = []
+    problems: list[str] = []
+    for condition in ordered:
+        if len(replays) == settings.max_trajectory_panels:
+            break
+        run = representative_run(condition)
+        if run is None:
+            problems.append(f"{condition.ident}: no {POLICY_FILES}")
+            continue
+        try:
+            log.info("replaying %s (%s, seed %d)", condition.ident, condition.label, run.seed)
+            replays.append((condition, replay(run, settings.trajectory_episodes)))
+        except UnsafeFile:
+            raise  # a file that would run code is refused outright, not skipped like a stale checkpoint
+        except Exception as error:  # noqa: BLE001 (a checkpoint of another code version must not sink the report)
+            problems.append(
+                f"{condition.ident}: could not replay {run.path}: {type(error).__name__}: {error}"
+            )
+            log.warning("could not replay %s: %s", run.path, error)
+    return replays, problems
+
+
+def _trajectory_figure(
+    title: str, domain: str, chosen: Sequence[tuple[Condition, Replay]], figures_dir: Path, figures: list[Path]
+) -> list[str]:
+    """The figure of one domain's replays, a panel each, drawn into ``figures_dir`` and appended to ``figures``."""
+    # The longest, thinnest world drawn sets the grid, so that every world in the figure stays legible.
+    aspect = max(world_aspect(replay_) for _, replay_ in chosen)
+    columns, panel_width_in = trajectory_columns(aspect)
+    columns = min(columns, len(chosen))
+    rows = math.ceil(len(chosen) / columns)
+    # Each panel: the world at its aspect ratio, plus room for the two-line title and the legend below.
+    size = (panel_width_in * columns, (panel_width_in / aspect + 0.8) * rows + 0.5)
+    figure = Figure(figsize=size, layout="constrained")  # makes room for each panel's legend below it
+    axes = figure.subplots(rows, columns, squeeze=False).ravel()
+    for ax, (condition, replay_) in zip(axes, chosen):
+        draw_trajectories(ax, replay_, condition)
+    for ax in axes[len(chosen) :]:
+        ax.set_visible(False)
+    figure.suptitle(title)
+    path = figures_dir / f"fig10_trajectories_{domain}.png"
+    _save(figure, path)
+    figures.append(path)
+    log.info("drew %s", path.name)
+    return [f"![{title}](figures/{path.name})", ""]
 
 
 def family_sections(
@@ -456,67 +474,87 @@ def family_sections(
     for family in families:
         members = [c for c in conditions if family in c.families]
         md += [f"### {family}", ""]
-        figure = Figure(figsize=(13, 4.8))
-        axes = figure.subplots(1, len(CURVE_METRICS), squeeze=False)[0]
         within = varying_keys(members)
         if len({c.algo for c in members}) > 1:  # each learner has settings of its own; its name (in the label) says which
             within = [key for key in within if not key.startswith("algo.")]
         labels = [f"{c.ident} {describe(c, within) or c.label}" for c in members]
-        drawn = False
-        for ax, metric in zip(axes, CURVE_METRICS):
-            drawn |= draw_curves(ax, members, labels, metric, settings, curves_rows, f"curves_{slug(family)}")
-            ax.set_title(CURVE_METRICS[metric])
-        if drawn:
-            handles, texts = axes[0].get_legend_handles_labels()
-            figure.legend(
-                handles,
-                texts,
-                fontsize=7,
-                loc="upper center",
-                bbox_to_anchor=(0.5, 0.02),
-                ncol=min(4, len(texts)),
-                frameon=False,
-            )
-            figure.suptitle(f"{family}: mean over seeds, SE shaded")
-            path = figures_dir / f"curves_{slug(family)}.png"
-            _save(figure, path)
-            figures.append(path)
-            log.info("drew %s", path.name)
-            md += [f"![learning curves of {family}](figures/{path.name})", ""]
-        else:
-            md += ["_No learning curve: these runs did not evaluate during training (eval_every=0)._", ""]
+        md += _curves_figure(family, members, labels, settings, figures_dir, figures, curves_rows)
         md += _cost_figure(family, members, labels, settings, figures_dir, figures, curves_rows)
-        # Where some runs record costs, every condition gets a safety row: one without says so rather than vanishing.
-        family_safety = any(records_safety(condition) for condition in members)
-        safety_rows = []
-        final_rows = []
-        for condition in members:
-            agents = condition.agents()
-            for metric in CURVE_METRICS:
-                for (agent, name), final in zip(
-                    agents, finals(condition, [a for a, _ in agents], metric, settings)
-                ):
-                    final_rows.append((condition, name, final))
-                    numbers.add_final(f"family:{family}", condition, final)
-            team = finals(condition, ["team"], "success_rate", settings)
-            if condition.flat.get("env.layout", "sidewalk") != "sidewalk":
-                # The scenarios' coordination metrics (sidewalk.evaluate): whole-team keys of summary.json.
-                team += [final_of(condition, "team", key, key, settings) for key in SCENARIO_METRICS]
-            for final in team:
-                final_rows.append((condition, "team", final))
+        md += _family_finals(family, members, settings, numbers)
+    return md
+
+
+def _curves_figure(
+    family: str,
+    members: Sequence[Condition],
+    labels: Sequence[str],
+    settings: Settings,
+    figures_dir: Path,
+    figures: list[Path],
+    curves_rows: list[dict[str, Any]],
+) -> list[str]:
+    """``report.md`` lines of ``family``'s learning curves figure, drawn into ``figures_dir``; a line saying why
+    there is none where no run evaluated during training."""
+    figure = Figure(figsize=(13, 4.8))
+    axes = figure.subplots(1, len(CURVE_METRICS), squeeze=False)[0]
+    drawn = False
+    for ax, metric in zip(axes, CURVE_METRICS):
+        drawn |= draw_curves(ax, members, labels, metric, settings, curves_rows, f"curves_{slug(family)}")
+        ax.set_title(CURVE_METRICS[metric])
+    if not drawn:
+        return ["_No learning curve: these runs did not evaluate during training (eval_every=0)._", ""]
+    handles, texts = axes[0].get_legend_handles_labels()
+    figure.legend(
+        handles,
+        texts,
+        fontsize=7,
+        loc="upper center",
+        bbox_to_anchor=(0.5, 0.02),
+        ncol=min(4, len(texts)),
+        frameon=False,
+    )
+    figure.suptitle(f"{family}: mean over seeds, SE shaded")
+    path = figures_dir / f"curves_{slug(family)}.png"
+    _save(figure, path)
+    figures.append(path)
+    log.info("drew %s", path.name)
+    return [f"![learning curves of {family}](figures/{path.name})", ""]
+
+
+def _family_finals(family: str, members: Sequence[Condition], settings: Settings, numbers: NumberLog) -> list[str]:
+    """``report.md`` lines of ``family``'s final values and, where some runs record costs, its safety table; the
+    numbers go to ``numbers``."""
+    # Where some runs record costs, every condition gets a safety row: one without says so rather than vanishing.
+    family_safety = any(records_safety(condition) for condition in members)
+    safety_rows = []
+    final_rows = []
+    for condition in members:
+        agents = condition.agents()
+        for metric in CURVE_METRICS:
+            for (agent, name), final in zip(
+                agents, finals(condition, [a for a, _ in agents], metric, settings)
+            ):
+                final_rows.append((condition, name, final))
                 numbers.add_final(f"family:{family}", condition, final)
-            if family_safety:
-                by_metric = safety_finals(condition, settings)
-                learner_name = learner_agent(condition)[1]
-                safety_rows.append((condition, learner_name, by_metric))
-                for metric, final in by_metric.items():
-                    if recorded(final):
-                        numbers.add_final(f"safety:{family}", condition, final)
-                        if metric != "success_rate":  # the learner's success has its rows above
-                            final_rows.append((condition, learner_name, final))
-        md += ["Final values (`summary.json`):", ""] + final_table(final_rows, settings.confidence) + [""]
-        if safety_rows:
-            md += [SAFETY_NOTE, ""] + safety_table(safety_rows) + [""]
+        team = finals(condition, ["team"], "success_rate", settings)
+        if condition.flat.get("env.layout", "sidewalk") != "sidewalk":
+            # The scenarios' coordination metrics (sidewalk.evaluate): whole-team keys of summary.json.
+            team += [final_of(condition, "team", key, key, settings) for key in SCENARIO_METRICS]
+        for final in team:
+            final_rows.append((condition, "team", final))
+            numbers.add_final(f"family:{family}", condition, final)
+        if family_safety:
+            by_metric = safety_finals(condition, settings)
+            learner_name = learner_agent(condition)[1]
+            safety_rows.append((condition, learner_name, by_metric))
+            for metric, final in by_metric.items():
+                if recorded(final):
+                    numbers.add_final(f"safety:{family}", condition, final)
+                    if metric != "success_rate":  # the learner's success has its rows above
+                        final_rows.append((condition, learner_name, final))
+    md = ["Final values (`summary.json`):", ""] + final_table(final_rows, settings.confidence) + [""]
+    if safety_rows:
+        md += [SAFETY_NOTE, ""] + safety_table(safety_rows) + [""]
     return md
 
 
