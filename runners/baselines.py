@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from sidewalk.envs.layouts import SCENARIOS
+from sidewalk.envs.layouts import scenario_names
 from sidewalk.paths import CONFIG_DIR
 
 DOMAINS = ("discrete", "continuous")
@@ -57,7 +57,7 @@ def evaluate_team(scenario: str, domain: str, team: str, noise: float, seed: int
     from sidewalk.bench.common import compose_experiment
     from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
     from sidewalk.evaluate import evaluate
-    from sidewalk.views import ScriptedTeam
+    from sidewalk.opponents.team import ScriptedTeam
 
     experiment = compose_experiment([*scenario_overrides(scenario, domain), f"noise={noise}", f"seed={seed}"])
     core_cls = DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
@@ -78,7 +78,7 @@ def table(rows: pd.DataFrame) -> str:
         "|---" * (5 + len(METRICS)) + "|",
     ]
     keys = ["scenario", "domain", "agents", "team", "noise"]
-    order = {name: i for i, name in enumerate(SCENARIOS)}
+    order = {name: i for i, name in enumerate(scenario_names())}
     grouped = sorted(
         rows.groupby(keys),
         key=lambda item: (DOMAINS.index(item[0][1]), order[item[0][0]], TEAMS.index(item[0][3]), item[0][4]),
@@ -106,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="\n".join(__doc__.splitlines()[2:]),
     )
-    parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS)
+    parser.add_argument("--scenarios", nargs="+", default=scenario_names(), choices=scenario_names())
     parser.add_argument("--domains", nargs="+", default=list(DOMAINS), choices=DOMAINS)
     parser.add_argument("--teams", nargs="+", default=list(TEAMS), choices=TEAMS)
     parser.add_argument("--noise", nargs="+", type=float, default=[0.0], help="noise levels (grid: action noise)")

@@ -30,6 +30,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from sidewalk import run_folder
 from sidewalk.config import register_schemas, validate
+from sidewalk.opponents.policy import check_partner_of
 from sidewalk.hydra_callbacks import ERROR_FILE
 from sidewalk.paths import CONFIG_DIR
 
@@ -48,6 +49,7 @@ def main(cfg: DictConfig) -> float | None:
     with contextlib.ExitStack() as held:
         try:
             experiment = validate(cfg)  # every check before any compute
+            check_partner_of(experiment)
             # One writer per folder, taken before the folder is read: a second process is refused here.
             held.enter_context(run_folder.writer_lock(run_dir))
             run_folder.check(run_dir, config, experiment.resume)

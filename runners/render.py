@@ -188,7 +188,8 @@ def play_scripted(
     """
     from torchrl.envs.utils import step_mdp
 
-    from sidewalk.views import OPPONENTS, make_opponent
+    from sidewalk.opponents.base import make_opponent
+    from sidewalk.registry import OPPONENTS
 
     if "centralized" in (opponent, ego):
         raise ValueError(
@@ -335,8 +336,9 @@ def write_gallery_readme(out_dir: Path) -> Path:
     """``README.md`` of the gallery: a table of the stills in ``out_dir``, from the text each PNG carries."""
     from PIL import Image
 
-    from sidewalk.envs.layouts import SCENARIOS
+    from sidewalk.envs.layouts import scenario_names
 
+    SCENARIOS = scenario_names()
     order = {(s, d): i for i, (s, d) in enumerate((s, d) for s in SCENARIOS for d in GALLERY_PLANNERS)}
     entries = []
     for still in sorted(out_dir.glob("*.png")):
@@ -468,8 +470,9 @@ def gallery_main(args: argparse.Namespace, parser: argparse.ArgumentParser) -> i
     ]
     if extra:
         parser.error(f"--gallery takes its settings from GALLERY or the presets; drop {', '.join(extra)}")
-    from sidewalk.envs.layouts import SCENARIOS
+    from sidewalk.envs.layouts import scenario_names
 
+    SCENARIOS = scenario_names()
     unknown = sorted(set(args.scenario or ()) - set(SCENARIOS))
     if unknown:
         parser.error(f"--scenario {' '.join(unknown)}: not a scenario; valid: {', '.join(SCENARIOS)}")

@@ -220,7 +220,8 @@ def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], d
     ``scripted,rows``): a scripted opponent's name, ``scripted`` (every scripted opponent of ``domain``), ``rows``
     (every row's run), or a run or sweep folder (its learned policies). Rows' folders given again share their
     ``Player``. Raises ``CrossplayError`` for an unknown name or an opponent of another domain."""
-    from sidewalk.views import OPPONENTS, available_opponents
+    from sidewalk.opponents.base import available_opponents
+    from sidewalk.registry import OPPONENTS
 
     if spec is None:
         items = list(DEFAULT_PARTNERS)
@@ -230,7 +231,7 @@ def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], d
         items = [str(item) for item in spec]
     if not items:
         raise CrossplayError("--partners is empty; give scripted opponents' names and/or run folders")
-    scripted = available_opponents(domain)
+    scripted = [name for name in available_opponents(domain) if name != "policy"]  # a run folder names a learned one
     known = {player.path.resolve(): player for player in rows}
     columns: list[Column] = []
 
@@ -461,7 +462,8 @@ class Arena:
         """Metrics (``sidewalk.evaluate``'s keys, the row's agent as ego) of ``row`` with ``column`` playing every
         other agent."""
         from sidewalk.evaluate import evaluate
-        from sidewalk.views import EgoView, make_opponent
+        from sidewalk.opponents.base import make_opponent
+        from sidewalk.views import EgoView
 
         ego = row.agent
         core = self.core(ego)

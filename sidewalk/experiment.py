@@ -24,16 +24,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import platform
 import random
 import signal
-import sys
-import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Self
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -44,11 +41,14 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 from tqdm import tqdm
 
+from sidewalk._torchrl import collector_state, restore_collector_state
 from sidewalk.algos import ALGORITHMS
 from sidewalk.algos.base import Algorithm
 from sidewalk.config import Experiment
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
+from sidewalk.loggers import make_logger
+from sidewalk.opponents.base import make_opponent
 from sidewalk.opponents.policy import policy_description
 from sidewalk.run_folder import (
     METRICS,
@@ -58,15 +58,19 @@ from sidewalk.run_folder import (
     drop_training_state,
     git_revision,
     load_checkpoint,
+    package_versions,
     record_start,
     save_checkpoint,
     save_policy,
     writer_lock,
 )
+from sidewalk.snapshot import capture_env, capture_rng, restore_env, restore_rng
+from sidewalk.stops import LearnerDiverged, RunInterrupted, StopSignals, divergence
 from sidewalk.views import CentralizedView, EgoView, SelfPlayView
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds draw from a stream of their own, the same at every evaluation
 WALL_CLOCK_COLUMNS = ("time_s", "frames_per_s")
+METRICS_EVERY_S = 10.0  # metrics.csv is rewritten at least this often, so a watcher sees progress
 
 
 def make_view(experiment: Experiment, num_envs: int, seed: int) -> EnvBase:
@@ -78,12 +82,11 @@ def make_view(experiment: Experiment, num_envs: int, seed: int) -> EnvBase:
         return CentralizedView(core, shield=experiment.shield)
     if experiment.opponent == "self":
         return SelfPlayView(core, shield=experiment.shield, other_play=experiment.other_play)
+    others = tuple(agent for agent in range(core.n_agents) if agent != experiment.ego)
+    opponent = make_opponent(experiment.opponent, core, controlled=others, ego=experiment.ego,
+                             **experiment.opponent_params)
     return EgoView(
-        core,
-        opponent=experiment.opponent,
-        ego=experiment.ego,
-        end_on_ego_done=experiment.end_on_ego_done,
-        opponent_kwargs=experiment.opponent_params,
+        core, opponent=opponent, ego=experiment.ego, end_on_ego_done=experiment.end_on_ego_done,
         shield=experiment.shield,
     )
 
@@ -92,94 +95,6 @@ def collector_frames_per_batch(experiment: Experiment) -> int:
     """Frames of one iteration: the learner's ``frames_per_batch`` rounded up to whole steps of every world,
     as TorchRL's collector rounds it."""
     return math.ceil(experiment.algo.frames_per_batch / experiment.num_envs) * experiment.num_envs
-
-
-def package_versions() -> dict[str, str]:
-    import tensordict
-    import torchrl
-
-    import sidewalk
-
-    return {
-        "python": platform.python_version(),
-        "torch": torch.__version__,
-        "torchrl": torchrl.__version__,
-        "tensordict": tensordict.__version__,
-        "sidewalk": sidewalk.__version__,
-    }
-
-
-# ---- exact state of a running trial -----------------------------------------------------------------------------
-
-
-def _tensor_attributes(obj: Any) -> dict[str, Any]:
-    """An object's tensor, tensordict and dict-of-tensor attributes, plus its ``None`` ones (unset memories)."""
-    state = {}
-    for name, value in vars(obj).items():
-        if isinstance(value, (torch.Tensor, TensorDictBase)) or (value is None and name.startswith("_")):
-            state[name] = value
-        elif isinstance(value, dict) and value and all(isinstance(v, torch.Tensor) for v in value.values()):
-            state[name] = dict(value)
-    return state
-
-
-def capture_env(view: EnvBase) -> dict[str, Any]:
-    """The running state of a view, its core env and its opponent: every world mid-episode, the generator."""
-    core = view.core
-    state = {"view": _tensor_attributes(view), "core": _tensor_attributes(core), "rng": core.generator.get_state()}
-    if getattr(view, "opponent", None) is not None:
-        state["opponent"] = _tensor_attributes(view.opponent)
-    return state
-
-
-def restore_env(view: EnvBase, state: dict[str, Any]) -> None:
-    for name, value in state["view"].items():
-        setattr(view, name, value)
-    for name, value in state["core"].items():
-        setattr(view.core, name, value)
-    for name, value in state.get("opponent", {}).items():
-        setattr(view.opponent, name, value)
-    view.core.generator.set_state(state["rng"])
-
-
-def capture_rng() -> dict[str, Any]:
-    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
-
-
-def restore_rng(state: dict[str, Any]) -> None:
-    torch.set_rng_state(state["torch"])
-    np.random.set_state(state["numpy"])
-    random.setstate(state["python"])
-
-
-# ---- logging ----------------------------------------------------------------------------------------------------
-
-
-def make_logger(experiment: Experiment, run_dir: Path):
-    """The TorchRL logger named by ``logger.name`` (None for ``none``); optional backends fail with the install."""
-    cfg, name = experiment.logger, experiment.logger.name
-    try:
-        if name == "csv":
-            from torchrl.record.loggers.csv import CSVLogger
-
-            return CSVLogger(exp_name="logs", log_dir=str(run_dir))
-        if name == "tensorboard":
-            from torchrl.record.loggers.tensorboard import TensorboardLogger
-
-            return TensorboardLogger(exp_name="logs", log_dir=str(run_dir))
-        if name == "wandb":
-            from torchrl.record.loggers.wandb import WandbLogger
-
-            return WandbLogger(exp_name=run_dir.name, offline=cfg.offline, save_dir=str(run_dir), project=cfg.project)
-        if name == "mlflow":
-            from torchrl.record.loggers.mlflow import MLFlowLogger
-
-            uri = cfg.tracking_uri or (run_dir / "mlruns").resolve().as_uri()
-            return MLFlowLogger(exp_name=cfg.project, tracking_uri=uri)
-    except ImportError as error:
-        extra = {"tensorboard": "tensorboard", "wandb": "wandb", "mlflow": "mlflow"}[name]
-        raise ImportError(f"logger={name} needs the '{extra}' package: pip install {extra}") from error
-    return None
 
 
 def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:
@@ -215,72 +130,34 @@ def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:
     return metrics
 
 
-# ---- stopping early -------------------------------------------------------------------------------------------
-
-
-class RunInterrupted(Exception):
-    """SIGTERM, SIGUSR1 or SIGINT arrived; the run wrote a checkpoint at the end of ``iteration`` and stopped."""
-
-    def __init__(self, signum: int, iteration: int, run_dir: Path) -> None:
-        self.signum, self.iteration = signum, iteration
-        super().__init__(
-            f"{signal.Signals(signum).name} received: checkpointed at iteration {iteration} in {run_dir}; "
-            "continue with the same command and resume=true"
-        )
-
-
-class LearnerDiverged(RuntimeError):
-    """The learner's loss or parameters became non-finite; nothing from that update was written."""
-
-
-def divergence(algo: Algorithm, logs: dict[str, float]) -> str | None:
-    """What is non-finite after an update (a loss, or some module's parameters), or None.
-
-    One sum per module: a sum is finite exactly when every parameter is (they are far from overflowing it).
-    """
-    bad = [f"{key}={value}" for key, value in logs.items() if "loss" in key and not math.isfinite(value)]
-    for name, module in algo.modules().items():
-        total = sum((p.detach().sum() for p in module.parameters()), torch.zeros(()))
-        if not math.isfinite(float(total)):
-            bad.append(f"parameters of {name!r}")
-    return ", ".join(bad) or None
-
-
-class StopSignals:
-    """Record SIGTERM/SIGUSR1 (Slurm's pre-emption and submitit's notice) and a first Ctrl-C instead of dying, so
-    the loop can checkpoint at the end of the iteration; a second Ctrl-C raises ``KeyboardInterrupt`` at once.
-    Installed only in the main thread (Python's rule for handlers)."""
-
-    SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGUSR1", "SIGINT") if hasattr(signal, name))
-
-    def __init__(self) -> None:
-        self.received: int | None = None
-        self._previous: dict[int, Any] = {}
-
-    def __enter__(self) -> Self:
-        if threading.current_thread() is threading.main_thread():
-            for signum in self.SIGNALS:
-                self._previous[signum] = signal.signal(signum, self._record)
-        return self
-
-    def _record(self, signum: int, frame: Any) -> None:
-        if signum == signal.SIGINT and self.received == signal.SIGINT:
-            # The user insists: die of SIGINT now (exit 130). A KeyboardInterrupt raised inside TorchRL's loss
-            # surfaced as an unrelated RuntimeError; atomic writes keep the folder whole either way.
-            print("Ctrl-C again: stopped at once; resume=true continues from the last checkpoint", file=sys.stderr)
-            signal.signal(signal.SIGINT, signal.SIG_DFL)
-            os.kill(os.getpid(), signal.SIGINT)
-        if signum == signal.SIGINT:
-            print("\nCtrl-C: checkpointing at the end of this iteration (Ctrl-C again to stop at once)",
-                  file=sys.stderr, flush=True)
-        self.received = signum
-
-    def __exit__(self, *exc: object) -> None:
-        for signum, handler in self._previous.items():
-            signal.signal(signum, handler)
-
-
 # ---- the trial --------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Parts:
+    """What one trial is made of, built from its experiment in the order data flows through them."""
+
+    train_env: TransformedEnv
+    eval_env: EnvBase
+    algo: Algorithm
+    collector: Collector
+    replay_buffer: TensorDictReplayBuffer | None
+    logger: Any
+    frames_per_batch: int
+    ego: int | None  # the learner's agent in an ego view; None where it plays every agent
+
+
+@dataclass
+class Progress:
+    """Where a trial stands: the metrics rows so far, the iterations done and the wall clock's origin."""
+
+    rows: list[dict[str, float]] = field(default_factory=list)
+    iteration: int = 0
+    started: float = 0.0
+    last_write: float = 0.0
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.started
 
 
 class Trial:
@@ -305,20 +182,32 @@ class Trial:
         usual, with the iterations actually run).
         """
         with writer_lock(self.run_dir):
-            return self._train(progress, on_evaluation)
+            revision = git_revision()  # the code this process loaded, not what the checkout holds when it ends
+            self._seed()
+            parts = self._build()
+            state = self._start(parts)
+            bar = tqdm(total=self.experiment.iterations, initial=state.iteration, disable=not progress,
+                       desc="train", unit="it")
+            with StopSignals() as signals:
+                for batch in parts.collector:
+                    row, stop = self._iteration(parts, state, batch, on_evaluation)
+                    self._progress(bar, row)
+                    if self._after_iteration(parts, state, stop, signals, bar):
+                        break
+            bar.close()
+            return self._finish(parts, state, revision)
 
-    def _train(
-        self, progress: bool, on_evaluation: Callable[[dict[str, float], float, float], bool] | None
-    ) -> dict[str, float]:
+    def _seed(self) -> None:
         exp = self.experiment
-        revision = git_revision()  # the code this process loaded, not what the checkout holds when it ends
         torch.set_num_threads(exp.torch_threads)  # small networks: one thread beats contention on 2 cores
         torch.manual_seed(exp.seed)
         np.random.seed(exp.seed)
         random.seed(exp.seed)
         self.run_dir.mkdir(parents=True, exist_ok=True)
 
-        # env → view → learner → collector → replay buffer → logger
+    def _build(self) -> Parts:
+        """env → view → learner → collector → replay buffer → logger."""
+        exp = self.experiment
         train_env = TransformedEnv(make_view(exp, exp.num_envs, exp.seed), RewardSum())
         eval_env = make_view(exp, exp.eval_episodes, exp.seed + EVAL_SEED_OFFSET)
         algo: Algorithm = ALGORITHMS[exp.algo.name](exp.algo, train_env, device=exp.device)
@@ -336,116 +225,132 @@ class Trial:
             replay_buffer = TensorDictReplayBuffer(
                 storage=LazyTensorStorage(exp.algo.buffer_size, device=exp.device), batch_size=exp.algo.batch_size
             )
-        logger = make_logger(exp, self.run_dir)
-        ego = getattr(train_env.base_env, "ego", None)
+        return Parts(train_env, eval_env, algo, collector, replay_buffer, make_logger(exp, self.run_dir),
+                     frames_per_batch, getattr(train_env.base_env, "ego", None))
 
-        rows: list[dict[str, float]] = []
-        start_iteration, elapsed_before = 0, 0.0
+    def _start(self, parts: Parts) -> Progress:
+        """A fresh start, or (``resume=true``) every state the checkpoint holds put back, metrics rewound to it."""
+        exp = self.experiment
+        state = Progress()
+        elapsed_before = 0.0
         if exp.resume:
-            state = load_checkpoint(self.run_dir, map_location=exp.device)
-            algo.load_state_dict(state["algorithm"])
-            if replay_buffer is not None:
-                replay_buffer.load_state_dict(state["replay_buffer"])
-            restore_env(train_env.base_env, state["env"])
-            collector._carrier.update(state["carrier"])
-            collector._frames, collector._iter = state["collector_frames"], state["collector_iter"]
-            restore_rng(state["rng"])
-            rows, start_iteration, elapsed_before = state["rows"], state["iteration"], state["elapsed_s"]
+            saved = load_checkpoint(self.run_dir, map_location=exp.device)
+            parts.algo.load_state_dict(saved["algorithm"])
+            if parts.replay_buffer is not None:
+                parts.replay_buffer.load_state_dict(saved["replay_buffer"])
+            restore_env(parts.train_env.base_env, saved["env"])
+            restore_collector_state(parts.collector, saved)
+            restore_rng(saved["rng"])
+            state.rows, state.iteration, elapsed_before = saved["rows"], saved["iteration"], saved["elapsed_s"]
         if self.config:  # from runners/main.py: the folder records the config and this start
             record_start(self.run_dir, self.config, exp.resume)
         if exp.resume:
-            self._write_metrics(rows)
+            self._write_metrics(state.rows)
+        state.started = time.perf_counter() - elapsed_before
+        state.last_write = time.perf_counter()
+        return state
 
-        def checkpoint(iteration: int, elapsed: float) -> None:
-            state = {
-                "iteration": iteration,
-                "elapsed_s": elapsed,
-                "algorithm": algo.state_dict(),
-                "replay_buffer": replay_buffer.state_dict() if replay_buffer is not None else None,
-                "env": capture_env(train_env.base_env),
-                "carrier": collector._carrier.clone(),
-                "collector_frames": collector._frames,
-                "collector_iter": collector._iter,
-                "rng": capture_rng(),
-                "rows": rows,
-            }
-            save_checkpoint(self.run_dir, state)
-            save_policy(self.run_dir, self._policy_state(algo))  # a partner can play the run while it trains
-
-        started = time.perf_counter() - elapsed_before
-        bar = tqdm(total=exp.iterations, initial=start_iteration, disable=not progress, desc="train", unit="it")
-        iteration = start_iteration
-        last_write = time.perf_counter()
+    def _iteration(
+        self, parts: Parts, state: Progress, batch: TensorDictBase,
+        on_evaluation: Callable[[dict[str, float], float, float], bool] | None,
+    ) -> tuple[dict[str, float], bool]:
+        """One update on a collected batch, its metrics row (with an evaluation when one is due), logged; returns
+        the row and whether ``on_evaluation`` asked to stop."""
+        exp, algo = self.experiment, parts.algo
+        logs = {f"train/{key}": value for key, value in algo.update(batch, parts.replay_buffer).items()}
+        self._check_finite(algo, logs, state)
+        state.iteration += 1
+        parts.collector.update_policy_weights_()
+        row: dict[str, float] = {"iteration": state.iteration, "frames": state.iteration * parts.frames_per_batch}
+        row.update(train_metrics(batch, parts.ego))
+        previous_cost = state.rows[-1].get("train/cumulative_cost", 0.0) if state.rows else 0.0
+        row["train/cumulative_cost"] = previous_cost + row["train/cost"]
+        row.update(logs)
         stop = False
-        with StopSignals() as signals:
-            for batch in collector:
-                logs = {f"train/{key}": value for key, value in algo.update(batch, replay_buffer).items()}
-                diverged = divergence(algo, logs)
-                if diverged is not None:
-                    self._write_metrics(rows)
-                    self._history("diverged", iteration=iteration + 1, non_finite=diverged)
-                    raise LearnerDiverged(
-                        f"the learner diverged at iteration {iteration + 1}: non-finite {diverged}. The run stopped; "
-                        f"{self.run_dir} keeps its last checkpoint and metrics up to iteration {iteration} "
-                        "(try a lower algo.lr or algo.max_grad_norm, or another seed)"
-                    )
-                iteration += 1
-                collector.update_policy_weights_()
-                row: dict[str, float] = {"iteration": iteration, "frames": iteration * frames_per_batch}
-                row.update(train_metrics(batch, ego))
-                row["train/cumulative_cost"] = (rows[-1].get("train/cumulative_cost", 0.0) if rows else 0.0) + row["train/cost"]
-                row.update(logs)
-                if exp.eval_every and (iteration % exp.eval_every == 0 or iteration == exp.iterations):
-                    rng = capture_rng()  # evaluation must not shift the training stream
-                    eval_started = time.perf_counter()
-                    metrics = evaluate(eval_env, algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
-                    eval_ended = time.perf_counter()
-                    restore_rng(rng)
-                    row.update({f"eval/{key}": value for key, value in metrics.items()})
-                    stop = on_evaluation is not None and bool(on_evaluation(metrics, eval_started, eval_ended))
-                elapsed = time.perf_counter() - started
-                row["time_s"] = elapsed
-                row["frames_per_s"] = row["frames"] / max(elapsed, 1e-9)
-                rows.append(row)
-                if logger is not None:
-                    for key, value in row.items():
-                        if key != "iteration" and isinstance(value, float) and math.isfinite(value):
-                            logger.log_scalar(key, value, step=int(row["frames"]))
-                self._progress(bar, row)
-                done = stop or iteration >= exp.iterations
-                interrupted = signals.received is not None and not done
-                checkpoint_now = interrupted or (exp.checkpoint_every and iteration % exp.checkpoint_every == 0)
-                if checkpoint_now and not done:  # the end writes its own (keep_checkpoint=all) or none
-                    checkpoint(iteration, elapsed)
-                if checkpoint_now or done or time.perf_counter() - last_write > 10.0:
-                    self._write_metrics(rows)
-                    last_write = time.perf_counter()
-                if interrupted:
-                    bar.close()
-                    collector.shutdown()
-                    self._history("interrupted", iteration=iteration,
-                                   signal=signal.Signals(signals.received).name)
-                    raise RunInterrupted(signals.received, iteration, self.run_dir)
-                if done:
-                    break
-        bar.close()
-        if exp.keep_checkpoint == "all":
-            checkpoint(iteration, time.perf_counter() - started)
-        save_policy(self.run_dir, self._policy_state(algo))
-        collector.shutdown()
+        if exp.eval_every and (state.iteration % exp.eval_every == 0 or state.iteration == exp.iterations):
+            rng = capture_rng()  # evaluation must not shift the training stream
+            eval_started = time.perf_counter()
+            metrics = evaluate(parts.eval_env, algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+            eval_ended = time.perf_counter()
+            restore_rng(rng)
+            row.update({f"eval/{key}": value for key, value in metrics.items()})
+            stop = on_evaluation is not None and bool(on_evaluation(metrics, eval_started, eval_ended))
+        elapsed = state.elapsed()
+        row["time_s"] = elapsed
+        row["frames_per_s"] = row["frames"] / max(elapsed, 1e-9)
+        state.rows.append(row)
+        if parts.logger is not None:
+            for key, value in row.items():
+                if key != "iteration" and isinstance(value, float) and math.isfinite(value):
+                    parts.logger.log_scalar(key, value, step=int(row["frames"]))
+        return row, stop
 
+    def _check_finite(self, algo: Algorithm, logs: dict[str, float], state: Progress) -> None:
+        """Stop before anything is written from an update whose loss or parameters turned non-finite."""
+        diverged = divergence(algo, logs)
+        if diverged is None:
+            return
+        self._write_metrics(state.rows)
+        self._history("diverged", iteration=state.iteration + 1, non_finite=diverged)
+        raise LearnerDiverged(
+            f"the learner diverged at iteration {state.iteration + 1}: non-finite {diverged}. The run stopped; "
+            f"{self.run_dir} keeps its last checkpoint and metrics up to iteration {state.iteration} "
+            "(try a lower algo.lr or algo.max_grad_norm, or another seed)"
+        )
+
+    def _after_iteration(self, parts: Parts, state: Progress, stop: bool, signals: StopSignals, bar: tqdm) -> bool:
+        """Checkpoint and write metrics when due; leave on a signal (``RunInterrupted``); True when training is done."""
+        exp, iteration = self.experiment, state.iteration
+        done = stop or iteration >= exp.iterations
+        interrupted = signals.received is not None and not done
+        checkpoint_now = interrupted or (exp.checkpoint_every and iteration % exp.checkpoint_every == 0)
+        if checkpoint_now and not done:  # the end writes its own (keep_checkpoint=all) or none
+            self._checkpoint(parts, state, state.elapsed())
+        if checkpoint_now or done or time.perf_counter() - state.last_write > METRICS_EVERY_S:
+            self._write_metrics(state.rows)
+            state.last_write = time.perf_counter()
+        if interrupted:
+            bar.close()
+            parts.collector.shutdown()
+            self._history("interrupted", iteration=iteration, signal=signal.Signals(signals.received).name)
+            raise RunInterrupted(signals.received, iteration, self.run_dir)
+        return done
+
+    def _checkpoint(self, parts: Parts, state: Progress, elapsed: float) -> None:
+        saved = {
+            "iteration": state.iteration,
+            "elapsed_s": elapsed,
+            "algorithm": parts.algo.state_dict(),
+            "replay_buffer": parts.replay_buffer.state_dict() if parts.replay_buffer is not None else None,
+            "env": capture_env(parts.train_env.base_env),
+            **collector_state(parts.collector),
+            "rng": capture_rng(),
+            "rows": state.rows,
+        }
+        save_checkpoint(self.run_dir, saved)
+        save_policy(self.run_dir, self._policy_state(parts.algo))  # a partner can play the run while it trains
+
+    def _finish(self, parts: Parts, state: Progress, revision: str) -> dict[str, Any]:
+        """The last checkpoint (``keep_checkpoint=all``), ``policy.pt`` and ``summary.json`` from the final evaluation."""
+        exp, iteration = self.experiment, state.iteration
+        if exp.keep_checkpoint == "all":
+            self._checkpoint(parts, state, state.elapsed())
+        save_policy(self.run_dir, self._policy_state(parts.algo))
+        parts.collector.shutdown()
+        rows = state.rows
         last_eval = {key[len("eval/"):]: value for key, value in rows[-1].items() if key.startswith("eval/")}
-        final = last_eval or evaluate(eval_env, algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+        final = last_eval or evaluate(parts.eval_env, parts.algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
         training_cost = rows[-1].get("train/cumulative_cost", 0.0) if rows else 0.0
+        frames = iteration * parts.frames_per_batch
         summary = {
             **final,
             "seed": exp.seed,
             "iterations": iteration,
-            "frames": iteration * frames_per_batch,
+            "frames": frames,
             # Safety Gym's third figure: the cost paid over all of training per frame (world-step) collected.
             "train_cost": training_cost,
-            "cost_rate": training_cost / max(iteration * frames_per_batch, 1),
-            "wall_clock_s": time.perf_counter() - started,
+            "cost_rate": training_cost / max(frames, 1),
+            "wall_clock_s": state.elapsed(),
             "versions": package_versions(),
             "git_revision": revision,
         }
@@ -482,3 +387,10 @@ class Trial:
                 postfix[label] = f"{row[key]:.2f}"
         bar.set_postfix(postfix, refresh=False)
         bar.update(1)
+
+
+__all__ = [  # the stopping and state helpers live in their own modules; their names stay importable from here
+    "EVAL_SEED_OFFSET", "LearnerDiverged", "Parts", "Progress", "RunInterrupted", "StopSignals", "Trial",
+    "capture_env", "capture_rng", "collector_frames_per_batch", "make_logger", "make_view", "package_versions",
+    "restore_env", "restore_rng", "train_metrics",
+]

@@ -190,6 +190,45 @@ def read_torch_file(path: str | Path, map_location: Any = "cpu", mmap: bool = Fa
         raise UnreadableFile(path, f"{type(error).__name__}: {error}") from None
 
 
+def policy_file(run_dir: str | Path) -> Path | None:
+    """Where a run's learned networks are: ``policy.pt`` (every run since it was added), else ``checkpoint.pt``
+    (an unfinished run, or one written before), else None."""
+    for name in (POLICY, CHECKPOINT):
+        if (Path(run_dir) / name).exists():
+            return Path(run_dir) / name
+    return None
+
+
+def read_saved_config(run_dir: str | Path) -> Any:
+    """A run folder's ``config.yaml`` with every key it lacks filled from today's schemas (``with_schema_defaults``);
+    raises ``FileNotFoundError`` when the folder has none."""
+    from sidewalk.schema import with_schema_defaults
+
+    path = Path(run_dir) / CONFIG
+    if not path.exists():
+        raise FileNotFoundError(f"{path} does not exist: {run_dir} is not a run folder")
+    return with_schema_defaults(OmegaConf.load(path))
+
+
+def package_versions() -> dict[str, str]:
+    """The versions of Python and of the packages a run's numbers depend on, for its ``summary.json``."""
+    import platform
+
+    import tensordict
+    import torch
+    import torchrl
+
+    from sidewalk.version import __version__
+
+    return {
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "torchrl": torchrl.__version__,
+        "tensordict": tensordict.__version__,
+        "sidewalk": __version__,
+    }
+
+
 def git_revision() -> str:
     """The source tree's commit (with ``-dirty`` when it has changes), or ``unknown`` outside git."""
     root = Path(__file__).resolve().parents[1]
@@ -252,7 +291,7 @@ def check(run_dir: Path, config: dict[str, Any], resume: bool) -> tuple[int, int
         return None
     if not saved.exists():
         raise RunFolderError(f"resume=true but {saved} does not exist: {run_dir} is not a run folder")
-    from sidewalk.config import with_schema_defaults  # the schemas import the learners: only when resuming
+    from sidewalk.schema import with_schema_defaults  # the schemas import the learners: only when resuming
 
     # Keys added to the code since the folder was written compare at their defaults (the behaviour it ran with).
     old = OmegaConf.to_container(with_schema_defaults(OmegaConf.load(saved)), resolve=True)

@@ -14,9 +14,9 @@ import torch
 
 import sidewalk  # noqa: F401 - registers the gymnasium ids
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
-from sidewalk.envs.layouts import GRID_ROOMS, PLANE_ROOMS
 from sidewalk.interop import safety_gymnasium
 from sidewalk.interop.gymnasium import ENV_IDS, InvalidActionError, checked_action
+from sidewalk.registry import LAYOUTS
 
 torch.set_num_threads(1)
 
@@ -307,14 +307,14 @@ def test_the_faces_size_the_room_too():
     env.step(env.action_space.sample())
 
 
-@pytest.mark.parametrize("name", sorted(PLANE_ROOMS))
+@pytest.mark.parametrize("name", LAYOUTS.names(lambda scenario: scenario.any_n_agents))
 def test_every_scenario_room_holds_the_agents_it_is_sized_for(name):
-    capacity, own_room = PLANE_ROOMS[name]
+    capacity, own_room = LAYOUTS[name].plane_capacity, LAYOUTS[name].plane_room
     for n_agents in range(2, 65, 2 if name == "teams" else 1):
         for radius in (0.2, 0.3, 0.5):
             length_m, width_m = own_room(n_agents, radius, radius)
             assert capacity(length_m, width_m, radius, radius) >= n_agents, (name, n_agents, radius)
-    grid_capacity, grid_room = GRID_ROOMS[name]
+    grid_capacity, grid_room = LAYOUTS[name].grid_capacity, LAYOUTS[name].grid_room
     for n_agents in range(2, 65, 2 if name == "teams" else 1):
         assert grid_capacity(*grid_room(n_agents), 4) >= n_agents, (name, n_agents)
 

@@ -68,7 +68,7 @@ def test_run_length_and_worlds_come_from_the_learner_unless_given(overrides, exp
 def test_opponent_yaml_mirrors_the_constructor_defaults(name):
     import inspect
 
-    from sidewalk.views import opponent_class
+    from sidewalk.opponents.base import opponent_class
 
     yaml = OmegaConf.to_container(OmegaConf.load(CONF / "opponent" / f"{name}.yaml").params)
     parameters = inspect.signature(opponent_class(name).__init__).parameters

@@ -81,7 +81,7 @@ def matrix(runs):
 
 def test_the_matrix_has_a_cell_for_every_row_and_partner(runs, matrix):
     frame = matrix.frame
-    partners = ["random", "dijkstra", *(str(runs[name]) for name in RUNS)]
+    partners = ["dijkstra", "random", *(str(runs[name]) for name in RUNS)]
     assert list(frame.columns) == list(COLUMNS)
     assert len(frame) == len(RUNS) * len(partners)
     assert list(frame["partner"][: len(partners)]) == partners
@@ -147,7 +147,7 @@ def test_a_run_of_another_domain_fails_naming_it_before_any_evaluation(runs, mon
 
 def test_bad_partners_and_run_folders_are_named(runs, tmp_path):
     row = [runs["dqn_dijkstra_s0"]]
-    with pytest.raises(CrossplayError, match="unknown partner 'dijkstr'.*random, dijkstra"):
+    with pytest.raises(CrossplayError, match="unknown partner 'dijkstr'.*dijkstra, random"):
         run_crossplay(row, "dijkstr", show_progress=False)
     with pytest.raises(CrossplayError, match="partner 'prm' does not play the discrete domain"):
         run_crossplay(row, "prm", show_progress=False)

@@ -9,7 +9,7 @@ from gymnasium.utils.env_checker import check_env
 
 import sidewalk  # noqa: F401 - registers the gymnasium ids
 from sidewalk.interop.gymnasium import ENV_IDS, SidewalkGymEnv, SidewalkVectorEnv
-from sidewalk.views import OPPONENTS, available_opponents
+from sidewalk.opponents.base import available_opponents
 
 DISCRETE, CONTINUOUS = ENV_IDS["discrete"], ENV_IDS["continuous"]
 PLANNER = {DISCRETE: "dijkstra", CONTINUOUS: "prm"}
@@ -34,7 +34,7 @@ CASES = [
 
 def skip_if_absent(env_id: str, opponent: str) -> None:
     if opponent not in opponents(env_id):
-        pytest.skip(f"{OPPONENTS[opponent][0]} is not present")
+        pytest.skip(f"opponent {opponent!r} is not registered")
 
 
 # ---- gymnasium.make ----------------------------------------------------------------------------------------
@@ -100,7 +100,7 @@ def test_env_kwargs_pass_through_to_the_core():
 def test_bad_arguments_name_the_valid_values():
     with pytest.raises(TypeError, match="did you mean 'noise'"):
         gymnasium.make(DISCRETE, noize=0.1)
-    with pytest.raises(ValueError, match="'random', 'dijkstra', 'prm'"):
+    with pytest.raises(ValueError, match="'dijkstra', 'policy', 'prm', 'random'"):
         gymnasium.make(DISCRETE, opponent="greedy")
     with pytest.raises(ValueError, match="dijkstra"):
         gymnasium.make(CONTINUOUS, opponent="dijkstra")

@@ -20,6 +20,7 @@ from sidewalk.experiment import EVAL_SEED_OFFSET, make_view
 from sidewalk.opponents.policy import (
     PartnerMismatch,
     PolicyOpponent,
+    check_partner_of,
     read_partner,
     role_map,
     turn_observation,
@@ -32,6 +33,13 @@ CONF = ROOT / "conf"
 TINY = ["num_envs=4", "iterations=2", "eval_every=0", "eval_episodes=8", "checkpoint_every=0", "logger=none"]
 TINY_DQN = ["algo.frames_per_batch=16", "algo.batch_size=16", "algo.learning_starts=0", "algo.updates_per_batch=1"]
 register_schemas()
+
+
+def checked(cfg):
+    """What the runner does before any compute: validate the config, then check a learned partner's folder."""
+    experiment = validate(cfg)
+    check_partner_of(experiment)
+    return experiment
 
 
 def composed(*overrides: str):
@@ -98,7 +106,7 @@ def test_self_play_evaluation_reports_team_metrics_without_an_ego():
 @pytest.mark.parametrize(
     ("overrides", "named"),
     [
-        (["opponent=self", "algo=dqn"], "multi-agent learners for env=discrete: ippo, mappo, iql, vdn, qmix"),
+        (["opponent=self", "algo=dqn"], "multi-agent learners for env=discrete: ippo, iql, mappo, qmix, vdn"),
         (["opponent=dijkstra", "algo=iql"], "use opponent=self, not opponent=dijkstra"),
         (["env=continuous", "opponent=self", "algo=qmix"], "algo=qmix does not fit env=continuous"),
         (["opponent=random", "opponent.path=/tmp"], "opponent.path='/tmp' applies only to opponent=policy"),
@@ -106,17 +114,17 @@ def test_self_play_evaluation_reports_team_metrics_without_an_ego():
 )
 def test_learner_and_opponent_combinations_fail_naming_the_fix(overrides, named):
     with pytest.raises(ValueError) as error:
-        validate(composed(*overrides))
+        checked(composed(*overrides))
     assert named in str(error.value)
 
 
 def test_policy_opponent_needs_an_existing_run_folder(tmp_path):
     with pytest.raises(Exception, match="opponent.path"):
-        validate(composed("opponent=policy"))  # ??? (missing) path
+        checked(composed("opponent=policy"))  # ??? (missing) path
     with pytest.raises(FileNotFoundError, match="is not a folder"):
-        validate(composed("opponent=policy", f"opponent.path={tmp_path / 'nowhere'}"))
+        checked(composed("opponent=policy", f"opponent.path={tmp_path / 'nowhere'}"))
     with pytest.raises(FileNotFoundError, match="has no policy.pt"):
-        validate(composed("opponent=policy", f"opponent.path={tmp_path}"))
+        checked(composed("opponent=policy", f"opponent.path={tmp_path}"))
 
 
 # ---- policy.pt as a partner ---------------------------------------------------------------------------------------
@@ -124,13 +132,13 @@ def test_policy_opponent_needs_an_existing_run_folder(tmp_path):
 
 def test_a_partner_from_the_other_domain_or_scenario_fails_before_compute(runs):
     with pytest.raises(PartnerMismatch, match="trained in the discrete domain .* this run is env=continuous"):
-        validate(composed("env=continuous", "opponent=policy", f"opponent.path={runs['dqn']}"))
+        checked(composed("env=continuous", "opponent=policy", f"opponent.path={runs['dqn']}"))
     with pytest.raises(PartnerMismatch, match=r"env.layout='sidewalk' \(this run: 'door'\)"):
-        validate(composed("opponent=policy", f"opponent.path={runs['dqn']}", "env.layout=door", "env.n_agents=2"))
+        checked(composed("opponent=policy", f"opponent.path={runs['dqn']}", "env.layout=door", "env.n_agents=2"))
     with pytest.raises(PartnerMismatch, match=r"env.observation='image' \(this run: 'vector'\)"):
-        validate(composed("opponent=policy", f"opponent.path={runs['dqn']}", "env.observation=vector"))
+        checked(composed("opponent=policy", f"opponent.path={runs['dqn']}", "env.observation=vector"))
     # noise, rewards and the time limit may differ
-    validate(composed("opponent=policy", f"opponent.path={runs['dqn']}", "noise=0.3", "reward=implicit"))
+    checked(composed("opponent=policy", f"opponent.path={runs['dqn']}", "noise=0.3", "reward=implicit"))
 
 
 def test_policy_pt_describes_its_world(runs):
@@ -193,7 +201,7 @@ def test_a_single_agent_partner_cannot_play_a_role_without_symmetry(runs, tmp_pa
     torch.save(state, tmp_path / "door" / "policy.pt")
     door = ["env.layout=door", "env.n_agents=3"]
     with pytest.raises(PartnerMismatch, match="trained as agent 0 .* cannot play agent 1 in env.layout='door'"):
-        validate(composed("opponent=policy", f"opponent.path={tmp_path / 'door'}", *door))
+        checked(composed("opponent=policy", f"opponent.path={tmp_path / 'door'}", *door))
 
 
 def test_a_learner_trains_against_a_learned_partner(runs, tmp_path):

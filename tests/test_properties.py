@@ -44,7 +44,9 @@ from sidewalk.envs import (
     DiscreteSidewalkEnv,
 )
 from sidewalk.envs.grid import MOVES
-from sidewalk.envs.layouts import SCENARIOS
+from sidewalk.envs.layouts import scenario_names
+
+SCENARIOS = scenario_names()  # the built-in scenarios, in the paper's order
 
 ACTION = (AGENT_GROUP, "action")
 MAX_AGENTS = 6  # keeps the grid's grey levels distinct and a step cheap

@@ -12,8 +12,10 @@ import pytest
 from PIL import Image
 
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
-from sidewalk.envs.layouts import SCENARIOS
+from sidewalk.envs.layouts import scenario_names
 from sidewalk.envs.render import AGENT_COLOURS, BACKGROUND, CELL_LINE, TICK, WALL, colour
+
+SCENARIOS = scenario_names()  # the built-in scenarios, in the paper's order
 
 ROOT = Path(__file__).resolve().parents[1]
 PIXELS_PER_CELL, PIXELS_PER_M = 24, 60

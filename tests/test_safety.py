@@ -189,7 +189,7 @@ def continuous_collisions(noise: float, shield: bool, worlds: int = 500, steps: 
 
 def test_continuous_shield_under_the_papers_noise_levels():
     """A one-step shield with a braking margin stops random walkers' wall crashes at noise 0; action noise, added
-    after the shield, defeats it more the larger it is (measured here; README "Safe RL" gives the table)."""
+    after the shield, defeats it more the larger it is (measured here; docs/guide/safe-rl.md gives the table)."""
     rows = {}
     for noise in (0.0, 0.01, 0.5, 1.5):
         rows[noise] = (continuous_collisions(noise, False), continuous_collisions(noise, True))

@@ -14,9 +14,10 @@ import torch
 from torchrl.envs.utils import check_env_specs
 
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
-from sidewalk.envs.layouts import SCENARIOS, door_grid, door_plane
+from sidewalk.envs.layouts import door_grid, door_plane, scenario_names
 from sidewalk.evaluate import evaluate
-from sidewalk.views import CentralizedView, EgoView, ScriptedTeam
+from sidewalk.opponents.team import ScriptedTeam
+from sidewalk.views import CentralizedView, EgoView
 
 # The settings of each scenario as its preset has them (conf/experiment/<scenario>_<domain>.yaml).
 GRID = {
@@ -35,6 +36,7 @@ PLANE = {
     "door": {"n_agents": 3, "length_m": 6.0, "width_m": 3.0},
     "zipper": {"n_agents": 2, "length_m": 6.0, "width_m": 2.0},
 }
+SCENARIOS = scenario_names()
 CASES = [("discrete", name) for name in SCENARIOS] + [("continuous", name) for name in SCENARIOS]
 
 

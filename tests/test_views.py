@@ -11,16 +11,9 @@ from torchrl.collectors import Collector
 from torchrl.envs.utils import check_env_specs
 
 from sidewalk.envs import AGENT_GROUP, INFO_KEYS, ContinuousSidewalkEnv, DiscreteSidewalkEnv
-from sidewalk.opponents.base import Opponent
+from sidewalk.opponents.base import Opponent, available_opponents, make_opponent
 from sidewalk.opponents.random import RandomOpponent
-from sidewalk.views import (
-    OPPONENTS,
-    CentralizedView,
-    EgoView,
-    available_opponents,
-    make_opponent,
-    make_view,
-)
+from sidewalk.views import CentralizedView, EgoView, make_view
 
 UP, DOWN, LEFT, RIGHT = range(4)
 MOVES = {UP: (-1, 0), DOWN: (1, 0), LEFT: (0, -1), RIGHT: (0, 1)}
@@ -38,7 +31,7 @@ def planner_or_skip(domain: str) -> str:
     """The domain's planner opponent; skips the test while its module is not in the tree."""
     name = PLANNER[domain]
     if name not in available_opponents(domain):
-        pytest.skip(f"{OPPONENTS[name][0]} is not present")
+        pytest.skip(f"opponent {name!r} is not registered")
     return name
 
 
@@ -306,7 +299,7 @@ def test_views_without_an_opponent_reject_one():
 
 
 def test_unknown_opponent_names_the_valid_ones():
-    with pytest.raises(ValueError, match="'random', 'dijkstra', 'prm'"):
+    with pytest.raises(ValueError, match="'dijkstra', 'policy', 'prm', 'random'"):
         make_view("ego", core("discrete"), opponent="greedy")
 
 

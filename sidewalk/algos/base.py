@@ -20,6 +20,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sidewalk._checks import check_int, check_range
 from sidewalk.envs.base import AGENT_GROUP
+from sidewalk.registry import LEARNERS
 
 
 @dataclass
@@ -72,9 +73,18 @@ class Algorithm(abc.ABC):
     (Categorical or Bounded), ``reward``, ``done``/``terminated``. The modules live on ``device``.
     """
 
+    name: ClassVar[str | None] = None  # the config choice (``algo=NAME``); a class with a name registers itself
+    domains: ClassVar[tuple[str, ...]] = ()  # the domains it learns in
     Config: ClassVar[type[AlgoConfig]] = AlgoConfig
     uses_replay_buffer: ClassVar[bool] = False
     multi_agent: ClassVar[bool] = False  # trains every agent on the self-play view (opponent=self)
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "name" in cls.__dict__ and cls.name is not None:
+            if cls.Config().name != cls.name:
+                raise TypeError(f"{cls.__qualname__}.name={cls.name!r} but its Config's name is {cls.Config().name!r}")
+            LEARNERS.register(cls.name, cls)
 
     def __init__(self, config: AlgoConfig, env: EnvBase, device: torch.device | str = "cpu") -> None:
         self.config = config
@@ -148,9 +158,9 @@ class MultiAgentConfig(AlgoConfig):
 class MultiAgentAlgorithm(Algorithm):
     """A learner of every agent at once, on the self-play view (``sidewalk.views.SelfPlayView``, ``opponent=self``).
 
-    Keys are TorchRL's multi-agent ones: ``("agents", "observation")`` (N, *obs), ``("agents", "mask")`` (the agent's
-    value is still open: the step carries learning signal) and ``("agents", "action")`` in, ``("agents", "reward")``
-    and ``("agents", "done"|"terminated")`` (each agent's own end) out. The unbatched specs
+    Keys are TorchRL's multi-agent ones: ``("agents", "observation")`` ``(N, *obs)``, ``("agents", "mask")``
+    (the agent's value is still open: the step carries learning signal) and ``("agents", "action")`` in,
+    ``("agents", "reward")`` and ``("agents", "done"|"terminated")`` (each agent's own end) out. The unbatched specs
     below keep the agent dimension first: ``observation_spec.shape == (N, *obs)``, ``action_spec.shape == (N,)``
     (grid) or ``(N, 2)`` (continuous). ``n_agents`` is N.
     """

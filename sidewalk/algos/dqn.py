@@ -36,7 +36,7 @@ class DQNConfig(AlgoConfig):
     # and Polyak 0.01 (the reference runs' settings, which the grid presets keep), the default run learns in as
     # many frames with a quarter of the gradient steps: at 200 iterations (102,400 frames) ego success is 1.0 at the
     # last three evaluations of seeds 0, 1, 2; seed 4 learns at iteration 175, seed 3's greedy policy loiters until
-    # the time limit (README, "Training loop speed").
+    # the time limit (docs/guide/benchmarks.md, "Training loop speed").
     frames_per_batch: int = 512
     default_num_envs: int = 128
     default_iterations: int = 200
@@ -112,6 +112,8 @@ class DQN(Algorithm):
     """Double DQN with a dueling head (or a plain one) over the paper's conv stack (or over the raw vector
     observation)."""
 
+    name = "dqn"
+    domains = ("discrete",)
     Config = DQNConfig
     uses_replay_buffer = True
 

@@ -33,6 +33,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from sidewalk._checks import check_int, check_range
+from sidewalk._torchrl import multi_agent_mlp_last_layer
 from sidewalk.algos.base import FixedExplorationPolicy, MultiAgentAlgorithm, MultiAgentConfig
 from sidewalk.algos.networks import PAPER_CONV, RunningNorm, VectorEncoder, is_image_spec, tanh_normal
 from sidewalk.algos.ppo import LOSS_LOGS, clipped_ppo_update
@@ -139,7 +140,7 @@ def multi_agent_networks(
         features, n_out, n_agents, centralized=False, share_params=cfg.share_params, num_cells=list(cfg.hidden),
         activation_class=nn.Tanh,
     )
-    out_layer = head.params[str(len(head._empty_net) - 1)]
+    out_layer = head.params[multi_agent_mlp_last_layer(head)]
     with torch.no_grad():
         out_layer["weight"].mul_(0.01)
         out_layer["bias"].zero_()
@@ -171,6 +172,8 @@ class IPPO(MultiAgentAlgorithm):
     """Clipped PPO for every agent at once, each on its own reward; advantages by GAE over each collected
     (worlds, time) batch. ``centralised_critic``: the value networks see every agent's observation (MAPPO)."""
 
+    name = "ippo"
+    domains = ("discrete", "continuous")
     Config = IPPOConfig
     centralised_critic: ClassVar[bool] = False
 

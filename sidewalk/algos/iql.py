@@ -42,9 +42,8 @@ class IQLConfig(DQNConfig, MultiAgentConfig):
     The defaults are DQN's against Dijkstra (the network, γ, lr, the batch of 4 steps of 128 worlds) with what the
     reference self-play runs used (results/reference/crossplay/): 16 gradient steps an iteration at Polyak 0.0125
     (the same target-network speed per frame as DQN's 4 at 0.05), ε floored at 0.15 (at 0.05 both greedy agents
-    settled into a head-on standoff), 600 iterations (307,200 frames: in results/reference/selfplay/ seeds 0 and 1 of
-    IQL, VDN and QMIX first reached team success 0.95 at 61k-123k frames, and greedy evaluations still flipped between
-    a pass and a standoff after that). ``eps_ladder``
+    settled into a head-on standoff), 600 iterations (307,200 frames: room for the late flips between a pass and a
+    standoff that results/reference/selfplay/ records). ``eps_ladder``
     (Ape-X's per-world ε) and ``lr_end`` (a linear step-size decay) are off by default: neither was measured at scale.
     """
 
@@ -148,6 +147,8 @@ class LadderEGreedy(EGreedyModule):
 class IQL(MultiAgentAlgorithm):
     """Independent double DQN for every agent, over the agents' Q-network (``AgentQNetwork``)."""
 
+    name = "iql"
+    domains = ("discrete",)
     Config = IQLConfig
     uses_replay_buffer = True
     # What the replay buffer keeps of a transition: the agents' own rewards, ends and masks.

@@ -23,5 +23,7 @@ class MAPPOConfig(IPPOConfig):
 class MAPPO(IPPO):
     """IPPO whose value networks see every agent's observation."""
 
+    name = "mappo"
+    domains = ("discrete", "continuous")
     Config = MAPPOConfig
     centralised_critic: ClassVar[bool] = True

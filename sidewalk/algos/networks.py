@@ -27,8 +27,8 @@ def min_image_side(conv: dict | None = None) -> int:
 class ImageEncoder(nn.Module):
     """uint8 grey images (..., C, H, W) → features, through the paper's conv stack (ReLU), flattened.
 
-    ``channels_last``: the weights are stored channels-last, so oneDNN runs its channels-last kernels: a DQN
-    gradient step 48 → 42 ms in an isolated A/B (README, "Training loop speed").
+    ``channels_last``: the weights are stored channels-last, so oneDNN runs its faster channels-last kernels
+    (docs/guide/benchmarks.md, "Training loop speed").
     Weights keep that layout through ``.to(device)``, clones and ``load_state_dict``; a state dict written either
     way loads into either. Off for TRPO and PPO, whose flat parameter vectors (``parameters_to_vector``) need
     contiguous weights."""

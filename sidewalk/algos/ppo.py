@@ -121,6 +121,8 @@ def clipped_ppo_update(
 class PPO(Algorithm):
     """Clipped PPO with a separate critic; advantages by GAE over each collected (worlds, time) batch."""
 
+    name = "ppo"
+    domains = ("discrete", "continuous")
     Config = PPOConfig
 
     def _build(self, env: EnvBase) -> None:

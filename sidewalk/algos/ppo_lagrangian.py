@@ -144,6 +144,8 @@ class CostCriticLoss(nn.Module):
 class PPOLagrangian(PPO):
     """PPO with a cost critic and a Lagrange multiplier on the episode cost (see the module docstring)."""
 
+    name = "ppo_lagrangian"
+    domains = ("discrete", "continuous")
     Config = PPOLagrangianConfig
 
     def _build(self, env: EnvBase) -> None:

@@ -42,6 +42,8 @@ class QMIX(VDN):
     agent order). It is smaller and exact where the agents' images are large and ego-centric.
     """
 
+    name = "qmix"
+    domains = ("discrete",)
     Config = QMIXConfig
     TRANSITION_KEYS: ClassVar[tuple[NestedKey, ...]] = VDN.TRANSITION_KEYS
 

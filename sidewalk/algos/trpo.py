@@ -272,6 +272,8 @@ class TRPO(Algorithm):
     ``update`` takes one collector batch, (num_envs, T) or (T,) with time last, as ``Collector`` returns it.
     """
 
+    name = "trpo"
+    domains = ("discrete", "continuous")
     Config = TRPOConfig
     config: TRPOConfig
 

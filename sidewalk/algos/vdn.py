@@ -55,6 +55,8 @@ class VDN(IQL):
     of the agents' rewards (the centralized learner's team reward, so the two learners estimate the same return),
     with the world's done."""
 
+    name = "vdn"
+    domains = ("discrete",)
     Config = VDNConfig
     # The agents' rewards are summed into the root ("next", "reward") when the buffer is filled (``transitions``).
     TRANSITION_KEYS: ClassVar[tuple[NestedKey, ...]] = (

@@ -43,7 +43,7 @@ from torch import nn
 
 from sidewalk._checks import check_choice, check_int
 from sidewalk.bench.common import compose_experiment, format_table, sb3_vec_env, torch_threads
-from sidewalk.config import OPPONENT_DOMAINS
+from sidewalk.config import opponent_domains
 
 ENV_ID = "sidewalk/Continuous-v0"
 # name → (algorithm, library)
@@ -55,7 +55,7 @@ LEARNERS = {
 }
 SETUPS = ("defaults", "matched")
 OPPONENTS = tuple(
-    name for name, domains in OPPONENT_DOMAINS.items() if "continuous" in domains and name not in ("policy", "self")
+    name for name, domains in opponent_domains().items() if "continuous" in domains and name not in ("policy", "self")
 )
 SEEDS = (0, 1, 2)
 NOISE = 0.01

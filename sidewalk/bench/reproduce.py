@@ -44,7 +44,7 @@ from typing import Any
 
 import pandas as pd
 
-from sidewalk.bench.common import REPO_ROOT, is_commit, revision_trees
+from sidewalk.bench.common import is_commit, revision_trees
 from sidewalk.paths import RUNNERS_DIR
 
 SCRIPT = RUNNERS_DIR / "reproduce.sh"

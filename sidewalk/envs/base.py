@@ -31,11 +31,12 @@ from typing import Any, ClassVar
 
 import numpy as np
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from sidewalk._checks import check_int, replace_checked
+from sidewalk._torchrl import new_tensordict_unchecked
 from sidewalk.envs.rewards import RewardParams, compose_reward
 
 AGENT_GROUP = "agents"
@@ -50,8 +51,8 @@ def new_output(
 ) -> torch.Tensor:
     """An uninitialised tensor for a large output of a step, contiguous or with the (positive) ``stride`` given.
     On the CPU, from 4 MiB on, its memory is NumPy's: NumPy asks Linux for transparent huge pages (madvise), so the
-    first write into a fresh 100 MB batch of images costs ~25 ms rather than ~90 ms of 4 KiB page faults (torch's
-    allocator does so only under THP_MEM_ALLOC_ENABLE=1)."""
+    first write into a fresh batch of images takes far fewer page faults than with 4 KiB pages (torch's allocator
+    asks for huge pages only under THP_MEM_ALLOC_ENABLE=1)."""
     if stride is None or math.prod(shape) == 0:
         stride = torch.empty(shape, device="meta").stride()
     extent = 1 + sum((size - 1) * step for size, step in zip(shape, stride)) if math.prod(shape) else 0
@@ -67,8 +68,8 @@ def swap_in_reset(
     """Merge a reset output that covers every world into the running tensordict.
 
     Our envs' ``_reset`` returns every world (the reset ones fresh, the others exactly as the last step left them)
-    with every done key (False where reset), so TorchRL's masked merge -- a ``where`` over every entry, ~2 ms for
-    4096 images -- and its done completion and checks reduce to swapping in the new entries. Keys others put beside
+    with every done key (False where reset), so TorchRL's masked merge -- a ``where`` over every entry, images
+    included -- and its done completion and checks reduce to swapping in the new entries. Keys others put beside
     ours (a policy's recurrent state, ...) stay, at the root and inside our groups.
     """
     if tensordict is None:
@@ -78,8 +79,9 @@ def swap_in_reset(
     for key, fresh in tensordict_reset.items():
         previous = tensordict.get(key, None)
         if isinstance(previous, TensorDictBase) and isinstance(fresh, TensorDictBase):
-            for inner in previous.keys():
-                if inner not in fresh.keys():
+            # .keys(): a tensordict iterates over its first batch dimension, not its keys.
+            for inner in previous.keys():  # noqa: SIM118
+                if inner not in fresh.keys():  # noqa: SIM118
                     fresh.set(inner, previous.get(inner))
         tensordict.set(key, fresh)
     return tensordict
@@ -144,7 +146,7 @@ class SidewalkEnvBase(EnvBase):
         # The observation, state and goal entries of the last output; a partial reset recomputes only its worlds.
         self._last_observed: dict[str, torch.Tensor] | None = None
         # (N, N, 1): pairs of two different agents, for pairwise checks run agent-major, (N, N, B): broadcasting over
-        # a long last axis is ~10× faster than over a trailing axis of 2 agents.
+        # a long last axis is faster than over a trailing axis of 2 agents.
         self._not_self = ~torch.eye(self.n_agents, dtype=torch.bool, device=self.device).unsqueeze(-1)
         self._init_world()
         self._make_spec()
@@ -257,7 +259,7 @@ class SidewalkEnvBase(EnvBase):
 
     def _step_proc_data(self, next_tensordict_out: TensorDictBase) -> TensorDictBase:
         # _step emits every done key and the reward in its spec's shape, so TorchRL's completion and reshaping
-        # pass (~0.1 ms a step, as much as the grid's dynamics) has nothing to do; its type checks stay opt-in.
+        # pass (as costly as the grid's dynamics) has nothing to do; its type checks stay opt-in.
         if self.run_type_checks:
             return super()._step_proc_data(next_tensordict_out)
         return next_tensordict_out
@@ -344,7 +346,7 @@ class SidewalkEnvBase(EnvBase):
             cost.to(torch.float32).unsqueeze(-1) if cost is not None
             else torch.zeros((*agents_shape, 1), device=self.device)
         )
-        entries["info"] = TensorDict._new_unsafe(
+        entries["info"] = new_tensordict_unchecked(
             {key: value.unsqueeze(-1) for key, value in self._status.items()}, batch_size=agents_shape
         )
         entries["terminated"] = terminated.unsqueeze(-1)
@@ -354,11 +356,11 @@ class SidewalkEnvBase(EnvBase):
             entries["reward"] = reward.unsqueeze(-1)
         all_terminated = all_terminated.unsqueeze(-1)
         world_truncated = world_truncated.unsqueeze(-1)
-        # _new_unsafe skips validation that costs more than the step itself at small batch sizes; the
+        # new_tensordict_unchecked skips validation that costs more than the step itself at small batch sizes; the
         # shapes are right by construction and check_env_specs covers them in the tests.
-        return TensorDict._new_unsafe(
+        return new_tensordict_unchecked(
             {
-                AGENT_GROUP: TensorDict._new_unsafe(entries, batch_size=agents_shape),
+                AGENT_GROUP: new_tensordict_unchecked(entries, batch_size=agents_shape),
                 "terminated": all_terminated,
                 "truncated": world_truncated,
                 "done": all_terminated | world_truncated,
@@ -390,6 +392,7 @@ class SidewalkEnvBase(EnvBase):
     def _room(p: Any, given: tuple[Any, Any], default: tuple[Any, Any]) -> tuple[Any, Any]:
         """The room's two sides for params ``p``: ``given`` where not None, else the layout's choice."""
         raise NotImplementedError
+
     @property
     def generator(self) -> torch.Generator:
         """The env's random generator: opponents and views draw from it so that one seed fixes everything."""

@@ -17,11 +17,12 @@ class RewardParams:
     *explicit* cooperative reward (+1 each when both arrive), 0.0 the *implicit* one. ``c_center`` shapes the grid
     (per cell of distance from the central axis), ``c_potential`` the continuous world (per m² of squared
     distance to the agent's own goal); ``c_progress`` (ours, 0 by default) pays for the step's progress toward the
-agent's own goal -- in the grid per cell the shortest path around the walls shrank (for the scenarios whose walls
-make random exploration lethal), in the continuous world per metre the shortest path around interior walls shrank
-(the straight line where nothing stands between; ``sidewalk.envs.geodesic``; a dense signal like VMAS give_way's) -- a potential-based term (Ng et al. 1999: it leaves the optimal
-policies of the undiscounted game as they are). ``shaped_agents`` lists the agents that receive shaping; ``None`` means
-    all of them (the paper's centralized continuous run shaped agent 0 only: ``(0,)``).
+    agent's own goal -- in the grid per cell the shortest path around the walls shrank (for the scenarios whose
+    walls make random exploration lethal), in the continuous world per metre the shortest path around interior
+    walls shrank (the straight line where nothing stands between; ``sidewalk.envs.geodesic``; a dense signal like
+    VMAS give_way's) -- a potential-based term (Ng et al. 1999: it leaves the optimal policies of the undiscounted
+    game as they are). ``shaped_agents`` lists the agents that receive shaping; ``None`` means all of them (the
+    paper's centralized continuous run shaped agent 0 only: ``(0,)``).
     """
 
     c_step: float = -0.01
@@ -71,7 +72,7 @@ def compose_reward(
     ``alpha * c_goal`` for every *other* agent reaching its goal this step is paid to every agent that has not
     ``crashed`` (this episode, this step included), done or not: with alpha = 1 both agents end with +1 of goal
     reward when both arrive, whichever arrives first, but an agent that crashed out of the other's way is not paid
-    for the other's arrival (SPEC §1, revised 2026-11-23: that payment taught learners to crash on purpose).
+    for the other's arrival (SPEC §1: that payment taught learners to crash on purpose).
     """
     own = (
         params.c_step

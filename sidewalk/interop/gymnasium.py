@@ -7,7 +7,7 @@ Importing this module (``import sidewalk`` does) registers both ids::
 
 ``opponent`` is a registered opponent name (``"random"``; ``"dijkstra"`` in the grid, ``"prm"`` in the continuous
 world) for the ego view, or ``"centralized"`` for the joint-action view; ``shield=True`` puts the safety shield in
-front of the learner's actions (README "Safe RL"); every other keyword (``noise``,
+front of the learner's actions (docs/guide/safe-rl.md); every other keyword (``noise``,
 ``rewards``, ``observation``, ``max_steps``, ...) goes to the core env and is checked there. ``make_vec`` builds one
 batched core env of ``num_envs`` worlds (``vector_entry_point``), not ``num_envs`` copies.
 
@@ -55,7 +55,8 @@ from sidewalk._checks import check_choice
 from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, SidewalkEnvBase
 from sidewalk.envs.grid import DiscreteSidewalkEnv
 from sidewalk.envs.unicycle import OBSERVATION_FIELDS, ContinuousSidewalkEnv
-from sidewalk.views import OPPONENTS, WORLD, CentralizedView, EgoView
+from sidewalk.registry import OPPONENTS
+from sidewalk.views import WORLD, CentralizedView, EgoView
 
 DOMAINS: dict[str, type[SidewalkEnvBase]] = {
     "discrete": DiscreteSidewalkEnv,

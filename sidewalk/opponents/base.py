@@ -1,9 +1,11 @@
-"""The common shape of every scripted opponent: a TensorDict module that plays some agents of a Sidewalk env."""
+"""The common shape of every opponent: a TensorDict module that plays some agents of a Sidewalk env, and the
+registry of opponents by name (``sidewalk.registry.OPPONENTS``), which every subclass with a ``name`` joins."""
 
 from __future__ import annotations
 
 import inspect
 from collections.abc import Sequence
+from typing import Any, ClassVar
 
 import torch
 from tensordict import TensorDictBase
@@ -11,6 +13,7 @@ from tensordict.nn import TensorDictModuleBase
 
 from sidewalk._checks import check_int
 from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase
+from sidewalk.registry import OPPONENTS
 
 STATE_KEY = (AGENT_GROUP, "state")
 GOAL_KEY = (AGENT_GROUP, "goal")
@@ -33,7 +36,13 @@ class Opponent(TensorDictModuleBase):
     per-world memory (a planner's warm start) of the worlds in the bool mask ``rows`` (B,).
     """
 
-    domains: tuple[str, ...] = ("discrete", "continuous")
+    name: ClassVar[str | None] = None  # the config choice (``opponent=NAME``); a class with a name registers itself
+    domains: ClassVar[tuple[str, ...]] = ("discrete", "continuous")  # the domains it plays
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "name" in cls.__dict__ and cls.name is not None:
+            OPPONENTS.register(cls.name, cls)
 
     def __init__(self, env: SidewalkEnvBase, controlled: Sequence[int] = (1,), ego: int | None = 0) -> None:
         super().__init__()
@@ -98,3 +107,29 @@ def env_domain(env: SidewalkEnvBase) -> str:
     from sidewalk.envs.grid import DiscreteSidewalkEnv
 
     return "discrete" if isinstance(env, DiscreteSidewalkEnv) else "continuous"
+
+
+def opponent_class(name: str) -> type[Opponent]:
+    """The ``Opponent`` subclass registered as ``name``; raises ``ValueError`` naming the valid names."""
+    return OPPONENTS[name]
+
+
+def available_opponents(domain: str | None = None) -> list[str]:
+    """Names of the registered opponents, optionally only those playing ``domain``."""
+    return OPPONENTS.names(lambda cls: domain is None or domain in cls.domains)
+
+
+def make_opponent(
+    name: str, env: SidewalkEnvBase, controlled: Sequence[int] = (1,), ego: int | None = 0, **kwargs: Any
+) -> Opponent:
+    """Build the opponent registered as ``name`` for ``env``, playing the ``controlled`` agents against ``ego``
+    (``"policy"``: a learned partner, ``path=RUN_DIR``). Raises ``ValueError`` for an unknown name (listing the
+    valid ones) or an opponent that does not play the env's domain (listing those that do)."""
+    cls = opponent_class(name)
+    domain = env_domain(env)
+    if domain not in cls.domains:
+        raise ValueError(
+            f"opponent {name!r} plays the {' and '.join(cls.domains)} domain, not {domain!r}; "
+            f"opponents for the {domain} domain: {', '.join(map(repr, available_opponents(domain)))}"
+        )
+    return cls(env, controlled=controlled, ego=ego, **kwargs)

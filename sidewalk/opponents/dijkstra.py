@@ -65,6 +65,7 @@ class DijkstraOpponent(Opponent):
     ``last_rounds`` holds the number of scan rounds of the last call.
     """
 
+    name = "dijkstra"
     domains = ("discrete",)
 
     def __init__(

@@ -83,6 +83,24 @@ def policy_description(experiment: Any) -> dict[str, Any]:
     }
 
 
+def saved_description(run_dir: str | Path) -> dict[str, Any]:
+    """``policy_description`` of a run folder from before ``policy.pt`` described its world, from its ``config.yaml``."""
+    from omegaconf import OmegaConf
+
+    from sidewalk.run_folder import read_saved_config
+    from sidewalk.schema import env_params_of
+
+    cfg = read_saved_config(run_dir)
+    return {
+        "algo_name": cfg.algo.name,
+        "algo": dataclasses.asdict(OmegaConf.to_object(cfg.algo)),
+        "domain": cfg.env.domain,
+        "env_params": dataclasses.asdict(env_params_of(cfg)),
+        "opponent": cfg.opponent.name,
+        "ego": cfg.opponent.ego,
+    }
+
+
 def read_partner(path: str | Path, map_location: str | torch.device = "cpu") -> Partner:
     """The learner saved in the run folder ``path`` (its ``policy.pt``; a folder from before ``policy.pt``
     described itself is read through its ``config.yaml``). Raises ``FileNotFoundError`` naming what is missing."""
@@ -90,8 +108,7 @@ def read_partner(path: str | Path, map_location: str | torch.device = "cpu") -> 
     from sidewalk.envs.grid import DiscreteParams
     from sidewalk.envs.rewards import RewardParams
     from sidewalk.envs.unicycle import ContinuousParams
-    from sidewalk.report.runs import policy_file
-    from sidewalk.run_folder import POLICY, read_torch_file
+    from sidewalk.run_folder import POLICY, policy_file, read_torch_file
 
     run_dir = Path(path)
     if not str(path):
@@ -109,10 +126,7 @@ def read_partner(path: str | Path, map_location: str | torch.device = "cpu") -> 
         state = state["algorithm"]
     described = state.get("description")
     if described is None:  # written before policy.pt described its world: the folder's config.yaml does
-        from sidewalk.report.checkpoints import load_experiment
-
-        experiment = load_experiment(run_dir, device=str(map_location))
-        described = policy_description(experiment)
+        described = saved_description(run_dir)
     algo_cls = ALGORITHMS[described["algo_name"]]
     algo_config = algo_cls.Config(**described["algo"])
     params = dict(described["env_params"])
@@ -171,6 +185,14 @@ def check_partner(path: str | Path, domain: str, env_params: Any, ego: int | Non
     return partner
 
 
+def check_partner_of(experiment: Any) -> Partner | None:
+    """For ``opponent=policy``, the partner of a validated experiment, checked (``check_partner``) before any compute:
+    the runner calls it beside ``validate``, which opens no file. None for any other opponent."""
+    if experiment.opponent != "policy":
+        return None
+    return check_partner(experiment.opponent_params["path"], experiment.domain, experiment.env_params, experiment.ego)
+
+
 def role_map(domain: str, env_params: Any, trained: int, plays: int) -> str | None:
     """How a learner trained as agent ``trained`` sees the game of agent ``plays``: ``"same"`` (the roles are drawn
     alike: a random layout, or the same agent), ``"half_turn"`` (a two-agent layout a half turn maps onto itself
@@ -217,6 +239,8 @@ class PolicyOpponent(Opponent):
     It reads the agents' observations, ``("agents", "observation")``, from the env's last output (the views pass
     the core's) and writes their actions to ``("agents", "action")``.
     """
+
+    name = "policy"
 
     def __init__(
         self,

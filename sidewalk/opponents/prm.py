@@ -111,6 +111,7 @@ class PRMOpponent(Opponent):
     ``roadmap`` holds the roadmap, ``last_rounds`` the number of relaxation rounds of the last call.
     """
 
+    name = "prm"
     domains = ("continuous",)
 
     def __init__(

@@ -12,6 +12,8 @@ class RandomOpponent(Opponent):
     """Uniform random actions: one of the four moves in the grid, a uniform (acceleration, turn) within the
     bounds in the continuous world. It mostly acts as a moving obstacle."""
 
+    name = "random"
+
     def act(
         self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
     ) -> torch.Tensor:

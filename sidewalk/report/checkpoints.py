@@ -10,10 +10,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from omegaconf import OmegaConf
-
 from sidewalk.report.conditions import Condition
-from sidewalk.report.runs import CONFIG, POLICY_FILES, Run, policy_file
+from sidewalk.report.runs import POLICY_FILES, Run, policy_file
 
 
 def load_experiment(run_dir: str | Path, device: str = "cpu"):
@@ -23,12 +21,10 @@ def load_experiment(run_dir: str | Path, device: str = "cpu"):
     config dataclasses, exactly as ``runners/main.py`` built them; the top level is merged onto the experiment
     schema, so a folder written before a key existed (``keep_checkpoint``) replays with that key's default.
     """
-    from sidewalk.config import validate, with_schema_defaults
+    from sidewalk.config import validate
+    from sidewalk.run_folder import read_saved_config
 
-    path = Path(run_dir) / CONFIG
-    if not path.exists():
-        raise FileNotFoundError(f"{path} does not exist: {run_dir} is not a run folder")
-    return dataclasses.replace(validate(with_schema_defaults(OmegaConf.load(path))), device=device)
+    return dataclasses.replace(validate(read_saved_config(run_dir)), device=device)
 
 
 def load_policy(run_dir: str | Path, experiment, env):

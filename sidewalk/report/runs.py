@@ -14,7 +14,7 @@ from typing import Any
 import pandas as pd
 from omegaconf import OmegaConf
 
-from sidewalk.run_folder import CHECKPOINT, CONFIG, METRICS, POLICY, SUMMARY
+from sidewalk.run_folder import CHECKPOINT, CONFIG, METRICS, POLICY, SUMMARY, policy_file  # noqa: F401
 
 ERROR = "error.txt"
 # A folder holding any of these is a run folder, complete or not (".hydra" alone: a job killed while starting).
@@ -22,13 +22,6 @@ RUN_MARKERS = (CONFIG, METRICS, SUMMARY, CHECKPOINT, POLICY, ERROR, ".hydra")
 POLICY_FILES = f"{POLICY} or {CHECKPOINT}"
 
 
-def policy_file(run_dir: str | Path) -> Path | None:
-    """Where a run's learned networks are: ``policy.pt`` (every run since it was added), else ``checkpoint.pt``
-    (an unfinished run, or one written before), else None."""
-    for name in (POLICY, CHECKPOINT):
-        if (Path(run_dir) / name).exists():
-            return Path(run_dir) / name
-    return None
 SWEEP_MARKER = "multirun.yaml"
 
 

@@ -1,14 +1,49 @@
-"""What every scenario is made of: the fixed layouts of both domains (``GridLayout``, ``PlaneLayout``), and the
-helpers the scenario files share (agent counts, spacing, clearances)."""
+"""What every scenario is made of: its declaration (``Scenario``), the fixed layouts of both domains
+(``GridLayout``, ``PlaneLayout``), and the helpers the scenario files share (agent counts, spacing, clearances)."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
 from sidewalk._checks import check_int, check_range
+from sidewalk.registry import LAYOUTS
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A scenario (``env.layout=NAME``), declared once in its own module; declaring it registers it.
+
+    ``grid(rows, cols, n_agents, min_start_goal_cells)`` and ``plane(length_m, width_m, n_agents, agent_radius_m,
+    goal_radius_m, min_start_goal_m)`` build its layout in each domain it has (``None``: not in that domain). A
+    scenario for any number of agents also says how many agents a room holds (``grid_capacity(rows, cols,
+    min_start_goal_cells)``, ``plane_capacity(length_m, width_m, agent_radius_m, goal_radius_m)``) and its own room
+    for N agents (``grid_room(n_agents)``, ``plane_room(n_agents, agent_radius_m, goal_radius_m)``), from which an
+    env given no size picks its room. ``rank`` orders tables and galleries (the built-ins: the paper's order).
+    """
+
+    name: str
+    grid: Callable[..., Any] | None = None
+    plane: Callable[..., Any] | None = None
+    grid_capacity: Callable[..., int] | None = None
+    grid_room: Callable[[int], tuple[int, int]] | None = None
+    plane_capacity: Callable[..., int] | None = None
+    plane_room: Callable[..., tuple[float, float]] | None = None
+    any_n_agents: bool = False
+    rank: int = 100
+
+    def __post_init__(self) -> None:
+        if self.grid is None and self.plane is None:
+            raise TypeError(f"scenario {self.name!r} builds no layout: give grid=..., plane=... or both")
+        LAYOUTS.register(self.name, self)
+
+    @property
+    def domains(self) -> tuple[str, ...]:
+        return tuple(domain for domain, build in (("discrete", self.grid), ("continuous", self.plane)) if build)
 
 
 @dataclass(frozen=True)
@@ -94,7 +129,6 @@ CLEARANCE_M = 0.1
 TEAM_SPACING_M = 0.8
 DOOR_WALL_M = 0.2  # thickness of the door's wall
 DOOR_SPACING_M = 1.2  # centre-to-centre spacing of the door's agents at the start
-ANY_N_LAYOUTS = ("random", "circle", "teams", "door")
 # What a refusal of too many agents for the room suggests.
 LARGER_ROOM_HINT = "give a larger room, or none: the layout then picks one that holds its agents"
 
@@ -136,7 +170,7 @@ def check_agents(
         hint = f"; {LARGER_ROOM_HINT}" if room and too_many else ""
         raise ValueError(
             f"layout {layout!r} takes {need} agents{where}; got n_agents={n_agents}{hint} "
-            f"(layouts for any number: {', '.join(n for n in ANY_N_LAYOUTS)})"
+            f"(layouts for any number: {', '.join(LAYOUTS.names(lambda scenario: scenario.any_n_agents))})"
         )
 
 

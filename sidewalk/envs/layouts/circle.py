@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from sidewalk.envs.layouts.base import CLEARANCE_M, GridLayout, PlaneLayout, check_agents, round_up
+from sidewalk.envs.layouts.base import CLEARANCE_M, GridLayout, PlaneLayout, Scenario, check_agents, round_up
 
 
 def _border(rows: int, cols: int) -> list[tuple[int, int]]:
@@ -85,3 +85,16 @@ def circle_plane(
         headings=tuple(math.remainder(a + math.pi, 2 * math.pi) for a in angles),
         goals=tuple((cx - radius * math.cos(a), cy - radius * math.sin(a)) for a in angles),
     )
+
+
+SCENARIO = Scenario(
+    "circle",
+    grid=circle_grid,
+    plane=circle_plane,
+    grid_capacity=circle_grid_capacity,
+    grid_room=circle_grid_room,
+    plane_capacity=circle_plane_capacity,
+    plane_room=circle_plane_room,
+    any_n_agents=True,
+    rank=3,
+)

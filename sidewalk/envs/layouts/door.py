@@ -11,6 +11,7 @@ from sidewalk.envs.layouts.base import (
     TEAM_SPACING_M,
     GridLayout,
     PlaneLayout,
+    Scenario,
     check_agents,
     round_up,
     spread,
@@ -102,3 +103,16 @@ def door_plane(
         goals=tuple((far, y) for y in ys),
         boxes=((x0, 0.0, x1, y0), (x0, y1, x1, width_m)),
     )
+
+
+SCENARIO = Scenario(
+    "door",
+    grid=door_grid,
+    plane=door_plane,
+    grid_capacity=door_grid_capacity,
+    grid_room=door_grid_room,
+    plane_capacity=door_plane_capacity,
+    plane_room=door_plane_room,
+    any_n_agents=True,
+    rank=5,
+)

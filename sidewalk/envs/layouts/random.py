@@ -9,7 +9,14 @@ from dataclasses import dataclass
 import torch
 
 from sidewalk._checks import check_int, check_range
-from sidewalk.envs.layouts.base import CLEARANCE_M, LARGER_ROOM_HINT, blocked_mask_of, clear_of, round_up
+from sidewalk.envs.layouts.base import (
+    CLEARANCE_M,
+    LARGER_ROOM_HINT,
+    Scenario,
+    blocked_mask_of,
+    clear_of,
+    round_up,
+)
 
 
 def _far_cells(rows: int, cols: int, min_start_goal_cells: int) -> int:
@@ -340,3 +347,16 @@ def random_plane(
         goal_gap_m=goal_gap_m,
         wall_gap_m=wall_gap_m,
     )
+
+
+SCENARIO = Scenario(
+    "random",
+    grid=random_grid,
+    plane=random_plane,
+    grid_capacity=random_grid_capacity,
+    grid_room=random_grid_room,
+    plane_capacity=random_plane_capacity,
+    plane_room=random_plane_room,
+    any_n_agents=True,
+    rank=2,
+)

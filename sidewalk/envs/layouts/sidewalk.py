@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from sidewalk._checks import check_int, check_range
-from sidewalk.envs.layouts.base import GridLayout, PlaneLayout, check_agents
+from sidewalk.envs.layouts.base import GridLayout, PlaneLayout, Scenario, check_agents
 
 
 def sidewalk_grid(rows: int = 7, cols: int = 15, n_agents: int = 2, min_start_goal_cells: int = 0) -> GridLayout:
@@ -46,3 +46,11 @@ def sidewalk_plane(
         headings=(0.0, math.pi),
         goals=((far, mid), (near, mid)),
     )
+
+
+SCENARIO = Scenario(
+    "sidewalk",
+    grid=sidewalk_grid,
+    plane=sidewalk_plane,
+    rank=1,
+)

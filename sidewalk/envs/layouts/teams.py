@@ -8,6 +8,7 @@ from sidewalk.envs.layouts.base import (
     TEAM_SPACING_M,
     GridLayout,
     PlaneLayout,
+    Scenario,
     check_agents,
     round_up,
     side_by_side,
@@ -79,3 +80,16 @@ def teams_plane(
         headings=(0.0,) * per_team + (math.pi,) * per_team,
         goals=tuple((far, y) for y in ys) + tuple((near, y) for y in ys),
     )
+
+
+SCENARIO = Scenario(
+    "teams",
+    grid=teams_grid,
+    plane=teams_plane,
+    grid_capacity=teams_grid_capacity,
+    grid_room=teams_grid_room,
+    plane_capacity=teams_plane_capacity,
+    plane_room=teams_plane_room,
+    any_n_agents=True,
+    rank=4,
+)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from sidewalk.envs.layouts.base import GridLayout, PlaneLayout, check_agents
+from sidewalk.envs.layouts.base import GridLayout, PlaneLayout, Scenario, check_agents
 
 
 def zipper_grid(rows: int, cols: int, n_agents: int = 2, min_start_goal_cells: int = 0) -> GridLayout:
@@ -54,3 +54,11 @@ def zipper_plane(
         goals=((merge - end_margin_m - agent_radius_m, lower), (length_m - end_margin_m, upper)),
         boxes=((merge, 0.0, length_m, width_m / 2),),
     )
+
+
+SCENARIO = Scenario(
+    "zipper",
+    grid=zipper_grid,
+    plane=zipper_plane,
+    rank=6,
+)

@@ -1,0 +1,156 @@
+"""The schemas behind ``conf/``: one dataclass per config group, registered in Hydra's ConfigStore.
+
+Each config group (``env``, ``opponent``, ``algo``, ``reward``, ``logger``) has a dataclass schema registered under
+``schema/<group>/<name>``, outside the groups themselves so that ``env=foo`` lists only real choices. The env and
+reward schemas are derived from the environments' own parameter dataclasses, so a default lives in one place. A run
+folder's saved config is read back through them (``with_schema_defaults``), below everything that reads run folders.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import MISSING, DictConfig, OmegaConf
+
+from sidewalk.algos import ALGORITHMS
+from sidewalk.envs.grid import DiscreteParams
+from sidewalk.envs.rewards import RewardParams
+from sidewalk.envs.unicycle import ContinuousParams
+
+# Set by the top level (`noise`) and the reward group, so they are not env-group fields.
+ENV_FIELDS_SET_ELSEWHERE = ("noise", "rewards")
+
+
+SCHEMA_TYPES = {"int": int, "float": float, "str": str, "bool": bool, "tuple[int, ...] | None": Optional[list[int]]}
+
+
+def _mutable_schema(name: str, params_cls: type, extra: list[tuple], exclude: tuple[str, ...] = ()) -> type:
+    """A plain (non-frozen) dataclass with the fields and defaults of ``params_cls``, for OmegaConf to type-check."""
+    fields = []
+    for f in dataclasses.fields(params_cls):
+        if f.name in exclude:
+            continue
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        annotation = SCHEMA_TYPES[f.type]  # the params modules use postponed (string) annotations
+        fields.append((f.name, annotation, field(default=default)))
+    return dataclasses.make_dataclass(name, [*extra, *fields])
+
+
+DiscreteEnvSchema = _mutable_schema(
+    "DiscreteEnvSchema", DiscreteParams, [("domain", str, field(default="discrete"))], ENV_FIELDS_SET_ELSEWHERE
+)
+ContinuousEnvSchema = _mutable_schema(
+    "ContinuousEnvSchema", ContinuousParams, [("domain", str, field(default="continuous"))], ENV_FIELDS_SET_ELSEWHERE
+)
+RewardSchema = _mutable_schema("RewardSchema", RewardParams, [("name", str, field(default="explicit"))])
+
+
+@dataclass
+class OpponentSchema:
+    """Who plays the other agent(s): a scripted opponent by name, a learned partner (``policy``: the frozen policy
+    of the run folder ``path``), ``centralized`` (the learner plays all through one joint action) or ``self``
+    (every agent is the learner: the multi-agent learners)."""
+
+    name: str = MISSING
+    ego: int = 0  # the agent the learner plays (ego views)
+    end_on_ego_done: bool = False  # end the learner's episode when the ego is done, not when the world is
+    params: dict[str, Any] = field(default_factory=dict)  # the opponent's own settings (planner radii, ...)
+    path: str = ""  # opponent=policy: the run folder whose policy.pt plays the other agent(s)
+    sample: bool = False  # opponent=policy: sample its actions (ε-greedy / the distribution) instead of greedy
+
+
+@dataclass
+class LoggerSchema:
+    """A TorchRL logger writing beside ``metrics.csv``; ``none`` writes only ``metrics.csv``."""
+
+    name: str = "csv"
+    project: str = "sidewalk"  # wandb project / mlflow experiment
+    offline: bool = True  # wandb: write locally, sync later with `wandb sync`
+    tracking_uri: str = ""  # mlflow: empty = a local file store inside the run folder
+
+
+@dataclass
+class ExperimentSchema:
+    """The root config. ``iterations`` counts collector batches (the paper's unit); ``eval_every`` and
+    ``checkpoint_every`` are in iterations; ``num_envs`` worlds are simulated in one batched env (conf: the
+    learner's ``algo.default_num_envs`` unless given)."""
+
+    env: Any = MISSING
+    opponent: Any = MISSING
+    algo: Any = MISSING
+    reward: Any = MISSING
+    logger: Any = MISSING
+    seed: int = 0
+    noise: float = 0.0
+    device: str = "cpu"
+    num_envs: int = 32
+    iterations: int = 500
+    eval_every: int = 50
+    eval_episodes: int = 256
+    checkpoint_every: int = 50
+    resume: bool = False
+    keep_checkpoint: str = "final"
+    torch_threads: int = 1
+    shield: bool = False
+    other_play: bool = False
+
+
+def with_schema_defaults(cfg: DictConfig) -> DictConfig:
+    """A run folder's saved config with every key it lacks filled from today's schemas (top level, algorithm,
+    logger): a folder written before a key existed (``keep_checkpoint``, ``algo.dueling``) reads as the run it was,
+    since a new key's default keeps the old behaviour. The algorithm and logger sections come back typed."""
+    cfg = OmegaConf.merge(OmegaConf.structured(ExperimentSchema), cfg)
+    cfg.algo = OmegaConf.merge(OmegaConf.structured(ALGORITHMS[cfg.algo.name].Config), cfg.algo)
+    cfg.logger = OmegaConf.merge(OmegaConf.structured(LoggerSchema), cfg.logger)
+    return cfg
+
+
+def room_side(*, _parent_: Any, _node_: Any) -> float | int:
+    """``${sidewalk.room:}``, the value of a room side in ``conf/env``: the side of the room the layout picks for its
+    agents (the default room wherever it holds them, so no result changes), honouring the other side where the user
+    gave it. The run's ``config.yaml`` records the number (configs are saved resolved)."""
+    from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
+
+    env_cls = DiscreteSidewalkEnv if _parent_.domain == "discrete" else ContinuousSidewalkEnv
+    side = _node_._key()
+    given = {key: _parent_[key] for key in ("layout", "n_agents", "agent_radius_m", "goal_radius_m",
+                                            "min_start_goal_m", "min_start_goal_cells") if key in _parent_}
+    for other in env_cls.room_sides:
+        if other != side and not _parent_._get_node(other)._is_interpolation():
+            given[other] = _parent_[other]
+    return env_cls.with_room(given)[side]
+
+
+def plugin_config_paths() -> list[str]:
+    """``${sidewalk.searchpath:}``, Hydra's search path in ``conf/config.yaml``: the config folders that installed
+    plug-ins declare (entry point group ``sidewalk.configs``, each naming a package that holds config groups), so
+    their YAMLs compose like ours (``opponent=theirs``) with no ``hydra.searchpath=`` on the command line."""
+    import importlib.metadata
+
+    return [f"pkg://{point.value}" for point in importlib.metadata.entry_points(group="sidewalk.configs")]
+
+
+def register_schemas() -> None:
+    """Put the schemas in Hydra's ConfigStore and the room resolver in OmegaConf (idempotent)."""
+    OmegaConf.register_new_resolver("sidewalk.room", room_side, replace=True)
+    OmegaConf.register_new_resolver("sidewalk.searchpath", plugin_config_paths, replace=True)
+    store = ConfigStore.instance()
+    store.store(name="experiment_schema", node=ExperimentSchema)
+    store.store(group="schema/env", name="discrete", node=DiscreteEnvSchema)
+    store.store(group="schema/env", name="continuous", node=ContinuousEnvSchema)
+    store.store(group="schema/reward", name="reward", node=RewardSchema)
+    store.store(group="schema/opponent", name="opponent", node=OpponentSchema)
+    store.store(group="schema/logger", name="logger", node=LoggerSchema)
+    for name in ALGORITHMS:
+        store.store(group="schema/algo", name=name, node=ALGORITHMS[name].Config)
+
+
+def env_params_of(cfg: DictConfig) -> DiscreteParams | ContinuousParams:
+    """The env's parameters a composed (or saved) config describes: its env group, ``noise`` and reward group."""
+    reward_fields = {k: v for k, v in OmegaConf.to_container(cfg.reward, resolve=True).items() if k != "name"}
+    env_fields = {k: v for k, v in OmegaConf.to_container(cfg.env, resolve=True).items() if k != "domain"}
+    params_cls = DiscreteParams if cfg.env.domain == "discrete" else ContinuousParams
+    return params_cls(**env_fields, noise=float(cfg.noise), rewards=RewardParams(**reward_fields))

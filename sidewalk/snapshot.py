@@ -1,0 +1,52 @@
+"""The exact state of a running trial, to checkpoint it and continue bit for bit: its view, core env and opponent
+(every world mid-episode, the generator), its collector (``sidewalk._torchrl``) and the global RNGs."""
+
+from __future__ import annotations
+
+import random
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from torchrl.envs import EnvBase
+
+
+def _tensor_attributes(obj: Any) -> dict[str, Any]:
+    """An object's tensor, tensordict and dict-of-tensor attributes, plus its ``None`` ones (unset memories)."""
+    state = {}
+    for name, value in vars(obj).items():
+        if isinstance(value, (torch.Tensor, TensorDictBase)) or (value is None and name.startswith("_")):
+            state[name] = value
+        elif isinstance(value, dict) and value and all(isinstance(v, torch.Tensor) for v in value.values()):
+            state[name] = dict(value)
+    return state
+
+
+def capture_env(view: EnvBase) -> dict[str, Any]:
+    """The running state of a view, its core env and its opponent: every world mid-episode, the generator."""
+    core = view.core
+    state = {"view": _tensor_attributes(view), "core": _tensor_attributes(core), "rng": core.generator.get_state()}
+    if getattr(view, "opponent", None) is not None:
+        state["opponent"] = _tensor_attributes(view.opponent)
+    return state
+
+
+def restore_env(view: EnvBase, state: dict[str, Any]) -> None:
+    for name, value in state["view"].items():
+        setattr(view, name, value)
+    for name, value in state["core"].items():
+        setattr(view.core, name, value)
+    for name, value in state.get("opponent", {}).items():
+        setattr(view.opponent, name, value)
+    view.core.generator.set_state(state["rng"])
+
+
+def capture_rng() -> dict[str, Any]:
+    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+
+
+def restore_rng(state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch"])
+    np.random.set_state(state["numpy"])
+    random.setstate(state["python"])

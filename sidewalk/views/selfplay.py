@@ -1,0 +1,134 @@
+"""Every agent is the learner: TorchRL's multi-agent keys, each agent with its own life cycle."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.data import Composite
+
+from sidewalk._torchrl import new_tensordict_unchecked
+from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase
+from sidewalk.symmetry import check_mirror_symmetric, mirror_action, mirror_observation
+from sidewalk.views.base import WORLD, _SidewalkView
+
+
+class SelfPlayView(_SidewalkView):
+    """Every agent is the learner (``opponent=self``): the core's multi-agent keys, for all B worlds.
+
+    Keys (batch shape (B,), agents group (B, N)): ``("agents", "observation")`` (each agent's ego-centric
+    observation), ``("agents", "action")``, ``("agents", "reward")`` (each agent's own reward, cooperative term
+    included), ``("agents", "cost")`` (each agent's safety cost of the step), each agent's own life cycle
+    ``("agents", "done"|"terminated"|"truncated")`` and ``("agents", "mask")``, the root ``done``/``terminated``/
+    ``truncated`` (B, 1), plus the ``"world"`` group (see the module docstring).
+
+    Each agent has its own life cycle, in TorchRL's multi-agent conventions (``docs/multiagent.md``):
+
+    - a crash terminates the agent at its crash step: its return ends there (it is paid nothing afterwards);
+    - an arrival keeps the agent's value open until the world ends, because eq. 2's cooperative reward for a partner
+      who arrives later is still to come; the agent is terminated with the world (every agent arrived or crashed);
+    - ``truncated``: the time limit, for every agent not terminated before it;
+    - ``mask`` (``~done``, as TorchRL's PettingZoo wrapper's): the agent's value is still open at this state, so the
+      step taken from it carries learning signal; learners leave the other steps out of every loss and statistic.
+
+    The root ``done``/``terminated``/``truncated`` are the world's: every agent done, or the time limit. An agent's
+    own outcome flags are in ``("world", "info")``; whether it still moves is in its observation (``active``).
+
+    ``other_play=True`` (Other-Play, Hu et al. 2020): at every reset of a world each agent but agent 0 plays, with
+    probability 1/2 drawn from the env's generator, through the mirror across the centre line
+    (``sidewalk.symmetry``): it sees its observation mirrored and its action is mirrored back before the world steps.
+    Its data stays in its own frame, so the learner needs no change, and the policy cannot rely on a convention that
+    the mirror breaks. Refused for layouts the mirror does not map onto themselves.
+    """
+
+    def __init__(self, env: SidewalkEnvBase, shield: bool = False, other_play: bool = False) -> None:
+        super().__init__(env, shield=shield)
+        if not isinstance(other_play, bool):
+            raise TypeError(f"other_play={other_play!r} must be a bool")
+        if other_play:
+            check_mirror_symmetric(env.layout)
+        self.other_play = other_play
+        # (B, N) bool: the agent plays this episode through the mirror; agent 0 never does.
+        self._mirrored = torch.zeros(self._agents_shape, dtype=torch.bool, device=self.device)
+        self._view_action_key = (AGENT_GROUP, "action")
+        self._make_spec()
+
+    def _make_spec(self) -> None:
+        core_agents = self.core.observation_spec[AGENT_GROUP]
+        agents_shape = self._agents_shape
+        done = self.core.full_done_spec
+        agent_done = {key: done[AGENT_GROUP, key].clone() for key in ("done", "terminated", "truncated")}
+        self.observation_spec = Composite(
+            {AGENT_GROUP: Composite(observation=core_agents["observation"].clone(),
+                                    cost=core_agents["cost"].clone(), mask=core_agents["present"].clone(),
+                                    shape=agents_shape, device=self.device),
+             WORLD: self._world_spec()},
+            shape=self.batch_size,
+            device=self.device,
+        )
+        self.action_spec = Composite(
+            {AGENT_GROUP: Composite(action=self.core.full_action_spec[AGENT_GROUP, "action"].clone(),
+                                    shape=agents_shape, device=self.device)},
+            shape=self.batch_size,
+            device=self.device,
+        )
+        self.reward_spec = Composite(
+            {AGENT_GROUP: Composite(reward=self.core.full_reward_spec[AGENT_GROUP, "reward"].clone(),
+                                    shape=agents_shape, device=self.device)},
+            shape=self.batch_size,
+            device=self.device,
+        )
+        self.done_spec = Composite(
+            {**{key: done[key].clone() for key in ("done", "terminated", "truncated")},
+             AGENT_GROUP: Composite(agent_done, shape=agents_shape, device=self.device)},
+            shape=self.batch_size,
+            device=self.device,
+        )
+
+    def _on_reset(self, rows: torch.Tensor) -> None:
+        if self.other_play:
+            # Drawn for every world and kept for the reset ones: the stream does not depend on which worlds reset.
+            draw = torch.rand(self._agents_shape, generator=self.generator, device=self.device) < 0.5
+            draw[:, 0] = False
+            self._mirrored = torch.where(rows.unsqueeze(-1), draw, self._mirrored)
+
+    def _where_mirrored(self, value: torch.Tensor, mirrored_value: torch.Tensor) -> torch.Tensor:
+        """Per agent (B, N, ...): ``mirrored_value`` where the agent plays through the mirror, else ``value``."""
+        mirrored = self._mirrored.view(*self._mirrored.shape, *([1] * (value.dim() - 2)))
+        return torch.where(mirrored, mirrored_value, value)
+
+    def _joint_action(self, action: torch.Tensor) -> torch.Tensor:
+        if not self.other_play:
+            return action
+        return self._where_mirrored(action, mirror_action(action, self.domain))
+
+    def _observation(self, agents: TensorDictBase) -> torch.Tensor:
+        observation = agents.get("observation")
+        if not self.other_play:
+            return observation
+        return self._where_mirrored(observation, mirror_observation(observation, self.core.layout))
+
+    def _output(self, core_out: TensorDictBase, reset: bool) -> TensorDictBase:
+        agents = core_out.get(AGENT_GROUP)
+        reward = (
+            agents.get("reward") if not reset else torch.zeros((*self._agents_shape, 1), device=self.device)
+        )
+        info = agents.get("info")
+        crashed = info.get("collided_agent") | info.get("collided_wall")
+        flags = {key: core_out.get(key) for key in ("done", "terminated", "truncated")}
+        terminated = crashed | flags["terminated"].unsqueeze(1).expand(*self._agents_shape, 1)
+        truncated = flags["truncated"].unsqueeze(1) & ~crashed
+        done = terminated | truncated
+        group = {
+            "observation": self._observation(agents), "cost": agents.get("cost"),
+            "done": done, "terminated": terminated, "truncated": truncated, "mask": ~done,
+        }
+        if not reset:
+            group["reward"] = reward
+        return new_tensordict_unchecked(
+            {
+                AGENT_GROUP: new_tensordict_unchecked(group, batch_size=self._agents_shape),
+                WORLD: self._world(agents, reward),
+                **flags,
+            },
+            batch_size=self.batch_size,
+        )
