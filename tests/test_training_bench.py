@@ -115,3 +115,37 @@ def test_equal_settings_give_our_dqn_sb3s_network():
     assert our_shapes(*EQUAL_NETWORK) == [tuple(p.shape) for p in sb3.policy.q_net.parameters()]
     dueling = our_shapes()
     assert len(dueling) == len(our_shapes(*EQUAL_NETWORK)) + 4  # value and advantage streams of two layers each
+
+
+def test_plain_pytorch_reference_is_the_same_math_as_our_step():
+    """The plain-PyTorch row counts the arithmetic of our DQN's step at each setup: 605 MFLOP at SB3's network (two
+    passes and a backward), 864 MFLOP at the defaults (the dueling head; double DQN's third pass), and its network
+    has our Q-network's parameter shapes."""
+    from sidewalk.algos.dqn import DQN
+    from sidewalk.bench.common import compose_experiment
+    from sidewalk.bench.training import BASE_OVERRIDES, EQUAL_NETWORK, PlainQNetwork, plain_gradient_steps
+    from sidewalk.experiment import make_view
+
+    for extra, mflop in ((EQUAL_NETWORK, 605), ((), 864)):
+        row = plain_gradient_steps(None, 1, extra, steps=4)
+        assert row["learner"] == "plain" and row["cpu_ms_per_gradient_step"] > 0
+        assert row["note"].startswith(f"{mflop} MFLOP a step")
+        experiment = compose_experiment([*BASE_OVERRIDES, *extra])
+        ours = DQN(experiment.algo, make_view(experiment, 2, 0))
+        plain = PlainQNetwork(ours.observation_spec.shape, 4, experiment.algo.hidden, experiment.algo.dueling)
+        assert sorted(p.numel() for p in plain.parameters()) == sorted(p.numel() for p in ours.q_network.parameters())
+
+
+def test_cost_notes_compare_ours_with_sb3_at_equal_and_with_plain_at_each_setup():
+    from sidewalk.bench.training import _add_ratios
+
+    def row(learner, setup, cpu_ms, fps=1000.0):
+        return {"measure": "frames_per_s", "setup": setup, "learner": learner, "threads": 1, "frames_per_s": fps,
+                "ms_per_gradient_step": 2 * cpu_ms, "cpu_ms_per_gradient_step": cpu_ms}
+
+    rows = [row("ours", "equal", 8.0), row("sb3", "equal", 10.0, 500.0), row("plain", "equal", 8.0, None),
+            row("ours", "dueling", 12.0), row("plain", "dueling", 10.0, None)]
+    _add_ratios(rows)
+    assert rows[0]["note"] == ("2.00x SB3's frames/s; 0.80x (0.80x wall) SB3's cost per gradient step; "
+                               "1.00x (1.00x wall) plain PyTorch's")
+    assert rows[3]["note"] == "1.20x (1.20x wall) plain PyTorch's"  # SB3 has no dueling head: no SB3 ratio

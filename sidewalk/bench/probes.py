@@ -40,6 +40,8 @@ PROBES: tuple[tuple[str, str], ...] = (
     ("replay write", "torchrl.data.replay_buffers.replay_buffers:TensorDictReplayBuffer.extend"),
     ("replay sample", "torchrl.data.replay_buffers.replay_buffers:TensorDictReplayBuffer.sample"),
     ("loss forward", "torchrl.objectives.dqn:DQNLoss.forward"),
+    # Our DQN's own step since issue 25: its forward passes, TD target and loss, and its Polyak step (one foreach lerp).
+    ("loss forward", "sidewalk.algos.dqn:DQN._gradient_step"),
     ("loss forward", "torchrl.objectives.ppo:ClipPPOLoss.forward"),
     ("advantage (GAE)", "torchrl.objectives.value.advantages:GAE.forward"),
     ("policy step (CG, line search)", "sidewalk.algos.trpo:trpo_step"),

@@ -1,6 +1,6 @@
 """Training speed: wall clock until our DQN's greedy policy succeeds on three evaluations in a row against the Dijkstra
-opponent (discrete sidewalk, noise 0.1), beside Stable-Baselines3's DQN; and both learners' frames/s and cost per
-gradient step at equal settings.
+opponent (discrete sidewalk, noise 0.1), beside Stable-Baselines3's DQN; both learners' frames/s and cost per
+gradient step at equal settings; and our cost per gradient step beside the same math in plain PyTorch.
 
 Ours is the ``runners/main.py`` path: the experiment composed from ``conf/`` (so the DQN defaults are read at run
 time) and run by ``Trial``. SB3's DQN trains on our Gymnasium face (``gymnasium.make_vec("sidewalk/Discrete-v0",
@@ -23,13 +23,18 @@ Setups (rows compare ours with SB3's row of the setup named in ``versus``):
 - ``dueling``: ours at its defaults (the paper's dueling head, double DQN), against SB3's ``equal`` row.
 - ``tuned``: the best settings found for each (TUNED_OURS, TUNED_SB3; what was tried is said beside them; today
   they are ``dueling``'s and ``equal``'s, so it is not run by default).
-frames/s and ms per gradient step: both at the ``equal`` settings, timed after learning starts, without
-evaluations; a gradient step is the learner's update call divided by its gradient steps (ours: ``DQN.update``, with
-the replay-buffer write, the sampling, the loss, the optimiser and the Polyak step; SB3: ``DQN.train``, with the
-sampling, the loss, the optimiser and its logger; its Polyak step runs outside, once per vector step).
+frames/s and ms per gradient step (``--fps-setups``): ours at ``equal`` and ``dueling``, SB3 at ``equal``, timed after
+learning starts, without evaluations. A gradient step's cost is the median over the learner's update calls of a
+call's time over its gradient steps, in wall clock and in CPU time (the notes' ratios: CPU time first, steadier on a
+shared machine). Ours: ``DQN.update``, with the replay-buffer write, the sampling, the loss, the optimiser and the
+Polyak step; SB3: ``DQN.train``, with the sampling, the loss, the optimiser and its logger (its Polyak step runs
+outside, once per vector step). ``plain``: the same update in plain PyTorch at the same setup
+(``plain_gradient_steps``: our network in ``torch.nn`` layers, tensors for a buffer, the write, the sampling, the
+loss, Adam, Polyak), timed in a loop, with its arithmetic counted in the note (MFLOP a step).
 
     python -m sidewalk.bench.training                          # equal and dueling; seeds 0-4; frames/s
     python -m sidewalk.bench.training --setups equal --seeds 0 --verbose
+    python -m sidewalk.bench.training --setups                 # ~1 min: frames/s and ms per gradient step only
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from copy import deepcopy
 from pathlib import Path
 from typing import Any
 
@@ -93,10 +99,12 @@ SB3_EQUAL: dict[str, Any] = {
 TUNED_OURS: tuple[str, ...] = ()
 TUNED_SB3: dict[str, Any] = {}
 DEFAULT_SETUPS = ("equal", "dueling")
+FPS_SETUPS = ("equal", "dueling")  # the frames/s and cost-per-gradient-step rows: ours and plain at both, SB3 at equal
+LEARNERS = ("ours", "sb3", "plain")  # plain: our DQN's update in plain PyTorch (a cost per gradient step only)
 COLUMNS = (
     "measure", "setup", "learner", "seed", "num_envs", "threads", "seconds_to_criterion", "min_s", "max_s",
     "frames_to_criterion", "met", "seconds_first", "seconds_with_eval", "best_success", "frames_per_s",
-    "ms_per_gradient_step", "load_1min", "note", "settings",
+    "ms_per_gradient_step", "cpu_ms_per_gradient_step", "load_1min", "note", "settings",
 )
 
 
@@ -158,35 +166,44 @@ class _Clock:
 
 
 @contextmanager
-def _gradient_step_timer(owner: Any, method: str, steps_of_call) -> Iterator[dict[str, float]]:
-    """Wrap ``owner.method`` (a class or an instance) to add up the seconds and gradient steps of the calls that take
-    any: ``steps_of_call(args, kwargs, call)`` runs the timed ``call()`` and returns the gradient steps it took."""
-    totals = {"seconds": 0.0, "steps": 0}
+def _gradient_step_timer(owner: Any, method: str, steps_of_call) -> Iterator[list[tuple[float, float, int]]]:
+    """Wrap ``owner.method`` (a class or an instance) to record (seconds, CPU seconds, gradient steps) of each call that
+    takes any: ``steps_of_call(args, kwargs, call)`` runs the timed ``call()`` and returns the gradient steps it
+    took."""
+    calls: list[tuple[float, float, int]] = []
     original = getattr(owner, method)
 
     def timed(*args, **kwargs):
         result: dict[str, Any] = {}
 
         def call():
-            start = time.perf_counter()
+            start, cpu_start = time.perf_counter(), time.process_time()
             result["value"] = original(*args, **kwargs)
             result["seconds"] = time.perf_counter() - start
+            result["cpu_seconds"] = time.process_time() - cpu_start
             return result["value"]
 
         steps = steps_of_call(args, kwargs, call)
         if steps:
-            totals["seconds"] += result["seconds"]
-            totals["steps"] += steps
+            calls.append((result["seconds"], result["cpu_seconds"], steps))
         return result["value"]
 
     setattr(owner, method, timed)
     try:
-        yield totals
+        yield calls
     finally:
         if isinstance(owner, type):
             setattr(owner, method, original)
         else:
             delattr(owner, method)
+
+
+def _per_step(calls: list[tuple[float, float, int]]) -> dict[str, float]:
+    """Wall-clock and CPU milliseconds (this process's threads) per gradient step: the median over timed calls of
+    (seconds, CPU seconds, gradient steps). On a shared machine the CPU time and the median are the steadier
+    measures of cost: others' work stretches the wall clock, in bursts."""
+    return {"ms_per_gradient_step": 1000 * statistics.median(wall / steps for wall, _, steps in calls),
+            "cpu_ms_per_gradient_step": 1000 * statistics.median(cpu / steps for _, cpu, steps in calls)}
 
 
 def our_overrides(num_envs: int | None, threads: int, seed: int, extra: Sequence[str]) -> list[str]:
@@ -216,19 +233,22 @@ def ours_time_to_target(
             "settings": _our_settings(experiment, extra)}
 
 
-def ours_frames_per_s(num_envs: int | None, threads: int, frames: int = FPS_FRAMES) -> dict:
-    """Frames/s of ``Trial`` at the equal settings after learning starts, without evaluations (the slope of
-    metrics.csv), and the milliseconds of ``DQN.update`` per gradient step in the same run."""
+def ours_frames_per_s(
+    num_envs: int | None, threads: int, frames: int = FPS_FRAMES, extra: Sequence[str] = EQUAL_NETWORK
+) -> dict:
+    """Frames/s of ``Trial`` after learning starts, without evaluations (the slope of metrics.csv), and the
+    milliseconds of ``DQN.update`` per gradient step in the same run; at the equal settings (``extra``: the
+    defaults with ``()``)."""
     import pandas as pd
 
     from sidewalk.algos.dqn import DQN
     from sidewalk.experiment import METRICS, Trial, collector_frames_per_batch
 
-    probe = compose_experiment(our_overrides(num_envs, threads, 0, EQUAL_NETWORK))
+    probe = compose_experiment(our_overrides(num_envs, threads, 0, extra))
     frames_per_batch = collector_frames_per_batch(probe)
     warm = math.ceil(max(probe.algo.learning_starts, probe.algo.batch_size) / frames_per_batch) + 1
     iterations = warm + math.ceil(frames / frames_per_batch)
-    overrides = [*our_overrides(num_envs, threads, 0, EQUAL_NETWORK), "eval_every=0", "eval_episodes=1",
+    overrides = [*our_overrides(num_envs, threads, 0, extra), "eval_every=0", "eval_episodes=1",
                  f"iterations={iterations}"]
     experiment = compose_experiment(overrides)
 
@@ -238,15 +258,15 @@ def ours_frames_per_s(num_envs: int | None, threads: int, frames: int = FPS_FRAM
         call()
         return algo.updates - before
 
-    with tempfile.TemporaryDirectory() as run_dir, _gradient_step_timer(DQN, "update", steps_of_update) as steps:
+    with tempfile.TemporaryDirectory() as run_dir, _gradient_step_timer(DQN, "update", steps_of_update) as calls:
         Trial(experiment, run_dir).run(progress=False)
         rows = pd.read_csv(Path(run_dir) / METRICS)
     learning = rows[rows["train/loss"].notna()]
     first, last = learning.iloc[0], learning.iloc[-1]
     rate = (last["frames"] - first["frames"]) / (last["time_s"] - first["time_s"])
     return {"learner": "ours", "num_envs": experiment.num_envs, "frames_per_s": rate,
-            "ms_per_gradient_step": 1000 * steps["seconds"] / steps["steps"],
-            "settings": _our_settings(experiment, EQUAL_NETWORK)}
+            **_per_step(calls),
+            "settings": _our_settings(experiment, extra)}
 
 
 def _our_settings(experiment, extra: Sequence[str]) -> str:
@@ -430,12 +450,12 @@ def sb3_frames_per_s(num_envs: int | None, threads: int, frames: int = FPS_FRAME
     with torch_threads(threads):
         torch.manual_seed(0)
         model = make_sb3_dqn(settings, warm + frames, 0)
-        with _gradient_step_timer(model, "train", steps_of_train) as steps:
+        with _gradient_step_timer(model, "train", steps_of_train) as calls:
             model.learn(total_timesteps=warm + frames, callback=Clock())
     learning = [(n, t) for n, t in points if n > warm]
     (n0, t0), (n1, t1) = learning[0], learning[-1]
     return {"learner": "sb3", "num_envs": settings["n_envs"], "frames_per_s": (n1 - n0) / (t1 - t0),
-            "ms_per_gradient_step": 1000 * steps["seconds"] / steps["steps"],
+            **_per_step(calls),
             "settings": _sb3_settings_text(settings)}
 
 
@@ -444,6 +464,119 @@ def _sb3_settings_text(settings: dict[str, Any]) -> str:
     train_freq = max(1, round(settings["frames_per_train"] / n_envs))
     rest = ", ".join(f"{k}={v}" for k, v in settings.items() if k not in ("n_envs", "frames_per_train"))
     return f"n_envs={n_envs}, DQN(CnnPolicy, PaperConvExtractor(256), train_freq={train_freq}, {rest})"
+
+
+# ---- plain PyTorch: the same math without a framework -----------------------------------------------------------
+
+
+class PlainQNetwork(nn.Module):
+    """Our Q-network in ``torch.nn`` layers: uint8 images /255 → the paper's convs (channels-last weights, as ours)
+    → dense ``hidden`` → a linear Q layer, or the dueling head's value and advantage streams of ``hidden`` each."""
+
+    def __init__(self, observation_shape: torch.Size, n_actions: int, hidden: int, dueling: bool) -> None:
+        super().__init__()
+        from sidewalk.algos.networks import PAPER_CONV
+
+        layers: list[nn.Module] = []
+        channels = observation_shape[0]
+        for out, kernel, stride in zip(PAPER_CONV["num_cells"], PAPER_CONV["kernel_sizes"], PAPER_CONV["strides"]):
+            layers += [nn.Conv2d(channels, out, kernel_size=kernel, stride=stride), nn.ReLU()]
+            channels = out
+        self.convs = nn.Sequential(*layers, nn.Flatten()).to(memory_format=torch.channels_last)
+        with torch.no_grad():
+            n_flat = self.convs(torch.zeros(1, *observation_shape)).shape[1]
+
+        def stream(out: int) -> nn.Sequential:
+            return nn.Sequential(nn.Linear(n_flat, hidden), nn.ReLU(), nn.Linear(hidden, out))
+
+        self.dueling = dueling
+        self.q = None if dueling else stream(n_actions)
+        self.value, self.advantage = (stream(1), stream(n_actions)) if dueling else (None, None)
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        features = self.convs(observation.to(torch.float32) / 255.0)
+        if not self.dueling:
+            return self.q(features)
+        advantage = self.advantage(features)
+        return self.value(features) + advantage - advantage.mean(-1, keepdim=True)
+
+
+def plain_gradient_steps(num_envs: int | None, threads: int, extra: Sequence[str], steps: int = 200) -> dict:
+    """Milliseconds per gradient step of our DQN's update in plain PyTorch (``PlainQNetwork``, no TorchRL, no
+    tensordict), our settings with the ``extra`` overrides: per iteration, ``frames_per_batch`` transitions written
+    into preallocated uint8 tensors, then ``updates_per_batch`` steps of a uniform minibatch: Q of the observations
+    with gradient, of the next observations without (the target network; and the online one to choose under double
+    DQN), the TD(0) target, the loss averaged, backward, gradient-norm clip, Adam (its default, per-tensor loop),
+    Polyak (a lerp_ per tensor). Timed in a loop of ``steps`` steps after a warm-up; the arithmetic of one step is
+    counted by ``torch.utils.flop_counter``."""
+    import torch.nn.functional as F
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from sidewalk.experiment import make_view
+
+    experiment = compose_experiment(our_overrides(num_envs, threads, 0, extra))
+    cfg = experiment.algo
+    view = make_view(experiment, 1, 0)
+    shape = view.full_observation_spec_unbatched["observation"].shape
+    n_actions = int(view.full_action_spec_unbatched["action"].space.n)
+    loss_function = {"l2": F.mse_loss, "l1": F.l1_loss, "smooth_l1": F.smooth_l1_loss}[cfg.loss_function]
+    generator = torch.Generator().manual_seed(0)
+    with torch_threads(threads):
+        torch.manual_seed(0)
+        online = PlainQNetwork(shape, n_actions, cfg.hidden, cfg.dueling)
+        target = deepcopy(online).requires_grad_(False)
+        optimizer = torch.optim.Adam(online.parameters(), lr=cfg.lr)
+        size = min(cfg.buffer_size, 2 * FPS_FRAMES)
+        observations = torch.randint(0, 256, (size, *shape), dtype=torch.uint8, generator=generator)
+        next_observations = torch.randint(0, 256, (size, *shape), dtype=torch.uint8, generator=generator)
+        actions = torch.randint(0, n_actions, (size,), generator=generator)
+        rewards = torch.randn(size, generator=generator)
+        terminated = torch.rand(size, generator=generator) < 0.01
+        frames = cfg.frames_per_batch
+        new = {name: data[:frames].clone() for name, data in
+               (("observation", observations), ("next", next_observations), ("action", actions),
+                ("reward", rewards), ("terminated", terminated))}
+
+        def iteration(cursor: int) -> torch.Tensor:
+            rows = torch.arange(cursor, cursor + frames) % size  # the write: a ring buffer
+            for data, name in ((observations, "observation"), (next_observations, "next"), (actions, "action"),
+                               (rewards, "reward"), (terminated, "terminated")):
+                data[rows] = new[name]
+            for _ in range(cfg.updates_per_batch):
+                index = torch.randint(0, size, (cfg.batch_size,), generator=generator)
+                observation, next_observation = observations[index], next_observations[index]
+                q_taken = online(observation).gather(-1, actions[index].unsqueeze(-1)).squeeze(-1)
+                with torch.no_grad():
+                    next_q = target(next_observation)
+                    choice = online(next_observation) if cfg.double_dqn else next_q
+                    next_value = next_q.gather(-1, choice.argmax(-1, keepdim=True)).squeeze(-1)
+                    td_target = rewards[index] + cfg.gamma * (~terminated[index]) * next_value
+                loss = loss_function(q_taken, td_target)
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(online.parameters(), cfg.max_grad_norm)
+                optimizer.step()
+                with torch.no_grad():
+                    for p_target, p_online in zip(target.parameters(), online.parameters()):
+                        p_target.lerp_(p_online, cfg.tau)
+            return loss
+
+        iterations = max(1, math.ceil(steps / cfg.updates_per_batch))
+        for i in range(5):  # warm-up: oneDNN's kernels, Adam's state
+            iteration(i * frames)
+        calls = []
+        for i in range(iterations):
+            start, cpu_start = time.perf_counter(), time.process_time()
+            iteration(i * frames)
+            calls.append((time.perf_counter() - start, time.process_time() - cpu_start, cfg.updates_per_batch))
+        counter = FlopCounterMode(display=False)
+        with counter:
+            iteration(0)
+    per_step = _per_step(calls)
+    mflop = counter.get_total_flops() / cfg.updates_per_batch / 1e6
+    return {"learner": "plain", "num_envs": experiment.num_envs, **per_step,
+            "note": f"{mflop:.0f} MFLOP a step, {mflop / per_step['cpu_ms_per_gradient_step']:.0f} GFLOP/s of CPU time",
+            "settings": f"plain PyTorch, {_our_settings(experiment, extra)}"}
 
 
 # ---- the section ------------------------------------------------------------------------------------------------
@@ -471,11 +604,12 @@ def run(
     seconds: float = SECONDS,
     seeds: Sequence[int] = SEEDS,
     setups: Sequence[str] = DEFAULT_SETUPS,
-    learners: Sequence[str] = ("ours", "sb3"),
+    learners: Sequence[str] = LEARNERS,
     fps: bool = True,
     eval_every_frames: int = EVAL_EVERY_FRAMES,
     ours_overrides: Sequence[str] | None = None,
     sb3_overrides: dict[str, Any] | None = None,
+    fps_setups: Sequence[str] = FPS_SETUPS,
 ) -> list[dict]:
     """Rows of time to the criterion (per seed, then the median with min and max) and of frames/s and ms per gradient
     step, per learner, setup, worlds, threads.
@@ -483,11 +617,12 @@ def run(
     ``num_envs``: training worlds of both learners for the ``equal``/``dueling`` setups and frames/s (default: the
     config's; the ``tuned`` setups choose their own); ``seconds``: training-time cap of each run;
     ``ours_overrides`` (Hydra overrides) and ``sb3_overrides`` (SB3_EQUAL keys) replace TUNED_OURS / TUNED_SB3 in
-    the ``tuned`` setup. ``runners/bench.py`` passes ``num_envs`` and ``threads`` as lists.
+    the ``tuned`` setup; ``fps_setups``: the setups of the frames/s and cost-per-gradient-step rows (SB3 at
+    ``equal`` only, ``plain`` has no frames/s). ``runners/bench.py`` passes ``num_envs`` and ``threads`` as lists.
     """
-    unknown = sorted(set(setups) - set(SETUPS))
+    unknown = sorted(set(setups) - set(SETUPS)) + sorted(set(fps_setups) - set(FPS_SETUPS))
     if unknown:
-        raise ValueError(f"unknown setup(s) {unknown}; valid: {', '.join(SETUPS)}")
+        raise ValueError(f"unknown setup(s) {unknown}; valid: {', '.join(SETUPS)} (frames/s: {', '.join(FPS_SETUPS)})")
     try:
         import stable_baselines3  # noqa: F401
     except ImportError:
@@ -502,12 +637,21 @@ def run(
     for n_threads in _as_list(threads):
         for n in _as_list(num_envs):
             base = {"threads": n_threads}
-            if fps:
+            for setup in fps_setups if fps else ():
                 for learner in learners:
-                    measure = ours_frames_per_s if learner == "ours" else sb3_frames_per_s
-                    rows.append({**base, "measure": "frames_per_s", "setup": "equal", **_loaded(measure, n, n_threads)})
+                    if learner == "ours":
+                        row = _loaded(ours_frames_per_s, n, n_threads, extra=ours_extra[setup])
+                    elif learner == "plain":
+                        row = _loaded(plain_gradient_steps, n, n_threads, ours_extra[setup])
+                    elif setup == "equal":  # SB3's DQN has neither the dueling head nor double DQN
+                        row = _loaded(sb3_frames_per_s, n, n_threads)
+                    else:
+                        continue
+                    rows.append({**base, "measure": "frames_per_s", "setup": setup, **row})
             for setup in setups:
                 for learner in learners:
+                    if learner == "plain":
+                        continue  # a cost per gradient step, not a learner run
                     if learner == "sb3" and setup == "dueling":
                         continue  # SB3's DQN has no dueling head: ours with it is compared with SB3's equal row
                     worlds = None if setup == "tuned" else n
@@ -553,27 +697,39 @@ def _median(per_seed: list[dict]) -> dict:
     return row
 
 
+def _cost_ratio(row: dict, other: dict) -> str:
+    """``row``'s cost per gradient step over ``other``'s: CPU time, then wall clock."""
+    return (f"{row['cpu_ms_per_gradient_step'] / other['cpu_ms_per_gradient_step']:.2f}x "
+            f"({row['ms_per_gradient_step'] / other['ms_per_gradient_step']:.2f}x wall)")
+
+
 def _add_ratios(rows: list[dict]) -> None:
     """Note on each of our median (or single-seed) rows how it compares with the matching SB3 row: the same setup
-    (``dueling``: SB3's ``equal``), seed and threads."""
+    (time rows at ``dueling``: SB3's ``equal``; frames/s rows at ``equal`` only), seed and threads; and on our
+    frames/s rows, our cost per gradient step beside plain PyTorch's at the same setup."""
     def key(row, setup=None):
         return row.get("measure"), setup or row.get("setup"), row.get("seed"), row.get("threads")
 
+    def match(learner, row, setup=None):
+        return next((r for r in rows if r.get("learner") == learner and key(r) == key(row, setup)), None)
+
     medians = {(r.get("setup"), r.get("threads")) for r in rows if r.get("seed") == "median"}
     for row in rows:
-        if row.get("learner") != "ours" or (row.get("seed") != "median" and (row.get("setup"), row.get("threads")) in medians):
+        if row.get("learner") != "ours":
             continue
-        versus = "equal" if row.get("setup") == "dueling" else row.get("setup")
-        other = next((r for r in rows if r.get("learner") == "sb3" and key(r) == key(row, versus)), None)
-        if other is None:
-            continue
+        parts = []
         if row["measure"] == "frames_per_s":
-            parts = [f"{row['frames_per_s'] / other['frames_per_s']:.2f}x SB3's frames/s",
-                     f"{row['ms_per_gradient_step'] / other['ms_per_gradient_step']:.2f}x SB3's cost per gradient step"]
-        else:
-            parts = []
-            if row.get("seconds_to_criterion") and other.get("seconds_to_criterion"):
-                parts.append(f"{row['seconds_to_criterion'] / other['seconds_to_criterion']:.2f}x SB3's time "
+            sb3, plain = match("sb3", row), match("plain", row)
+            if sb3 is not None:
+                parts += [f"{row['frames_per_s'] / sb3['frames_per_s']:.2f}x SB3's frames/s",
+                          f"{_cost_ratio(row, sb3)} SB3's cost per gradient step"]
+            if plain is not None:
+                parts.append(f"{_cost_ratio(row, plain)} plain PyTorch's")
+        elif row.get("seed") == "median" or (row.get("setup"), row.get("threads")) not in medians:
+            versus = "equal" if row.get("setup") == "dueling" else row.get("setup")
+            sb3 = match("sb3", row, versus)
+            if sb3 is not None and row.get("seconds_to_criterion") and sb3.get("seconds_to_criterion"):
+                parts.append(f"{row['seconds_to_criterion'] / sb3['seconds_to_criterion']:.2f}x SB3's time "
                              f"(SB3 {versus})")
         row["note"] = "; ".join(filter(None, [row.get("note"), *parts]))
 
@@ -585,8 +741,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--seconds", type=float, default=SECONDS, help="training-time cap of each run")
     parser.add_argument("--seeds", type=int, nargs="+", default=list(SEEDS))
     parser.add_argument("--setups", nargs="*", default=list(DEFAULT_SETUPS), choices=list(SETUPS))
-    parser.add_argument("--learners", nargs="+", default=["ours", "sb3"], choices=["ours", "sb3"])
+    parser.add_argument("--learners", nargs="+", default=list(LEARNERS), choices=list(LEARNERS))
     parser.add_argument("--no-fps", action="store_true", help="skip the frames/s rows")
+    parser.add_argument("--fps-setups", nargs="*", default=list(FPS_SETUPS), choices=list(FPS_SETUPS),
+                        help="setups of the frames/s and cost-per-gradient-step rows")
     parser.add_argument("--eval-every-frames", type=int, default=EVAL_EVERY_FRAMES)
     parser.add_argument("--ours", nargs="*", help="Hydra overrides of our tuned run (replace TUNED_OURS)")
     parser.add_argument("--sb3", nargs="*", help="SB3 settings key=value of the tuned run (replace TUNED_SB3)")
@@ -603,7 +761,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                 parser.error(f"--sb3 {name}: unknown; valid: {', '.join(SB3_EQUAL)}")
             sb3[name] = ast.literal_eval(value)
     rows = run(args.num_envs, args.threads, args.seconds, args.seeds, args.setups, args.learners, not args.no_fps,
-               args.eval_every_frames, args.ours, sb3)
+               args.eval_every_frames, args.ours, sb3, args.fps_setups)
     print(format_table(rows))
 
 
