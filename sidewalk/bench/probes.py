@@ -32,7 +32,7 @@ if __name__ == "__main__":  # run by path: this folder's modules (envs.py, views
 PROBES: tuple[tuple[str, str], ...] = (
     ("trial", "sidewalk.experiment:Trial.run"),
     ("collection", "torchrl.collectors._single:Collector.rollout"),
-    ("env step", "sidewalk.views:_SidewalkView._step"),
+    ("env step", "sidewalk.views.base:_SidewalkView._step"),
     ("opponent", "sidewalk.opponents.base:Opponent.forward"),
     ("update", "sidewalk.algos.dqn:DQN.update"),
     ("update", "sidewalk.algos.trpo:TRPO.update"),
