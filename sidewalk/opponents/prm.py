@@ -132,15 +132,10 @@ class PRMOpponent(Opponent):
     ) -> None:
         super().__init__(env, controlled, ego)
         params, layout = env.params, env.layout
-        check_int("n_nodes", n_nodes, 2, 10_000)
-        check_range("connection_radius_m", connection_radius_m, 0.0, low_open=True)
-        check_int("max_neighbors", max_neighbors, 1, n_nodes - 1)
-        free_half_width = min(layout.length_m, layout.width_m) / 2 - params.agent_radius_m
-        check_range("wall_clearance_m", wall_clearance_m, 0.0, free_half_width)
-        check_range("avoid_radius_m", avoid_radius_m, 0.0, low_open=True)
-        check_range("avoid_weight", avoid_weight, 0.0, 1000.0)
-        check_range("waypoint_tolerance_m", waypoint_tolerance_m, 0.0, connection_radius_m)
-        check_range("predict_horizon_s", predict_horizon_s, 0.0, 60.0)
+        self._check_settings(
+            env, n_nodes, connection_radius_m, max_neighbors, wall_clearance_m, avoid_radius_m, avoid_weight,
+            waypoint_tolerance_m, predict_horizon_s,
+        )
         if roadmap_seed is None:
             # The env's seed, read without drawing: the env's random stream is the same with or without a PRM.
             roadmap_seed = int(env.generator.initial_seed())
@@ -168,6 +163,35 @@ class PRMOpponent(Opponent):
                 )
             )
         )
+        self._prepare_edges()
+
+        n_agents, n_controlled = env.n_agents, len(self.controlled)
+        self._others = torch.ones(n_controlled, n_agents, 1, dtype=torch.bool, device=env.device)
+        self._others[torch.arange(n_controlled), self._controlled_index] = False
+        # One controlled agent among two avoids just the other one: a slice instead of a reduction.
+        self._only_other = 1 - self.controlled[0] if n_agents == 2 and n_controlled == 1 else None
+
+        self.last_rounds = 0
+        self._buffers: dict[str, torch.Tensor] = {}
+
+    @staticmethod
+    def _check_settings(
+        env: SidewalkEnvBase, n_nodes: int, connection_radius_m: float, max_neighbors: int, wall_clearance_m: float,
+        avoid_radius_m: float, avoid_weight: float, waypoint_tolerance_m: float, predict_horizon_s: float,
+    ) -> None:
+        params, layout = env.params, env.layout
+        check_int("n_nodes", n_nodes, 2, 10_000)
+        check_range("connection_radius_m", connection_radius_m, 0.0, low_open=True)
+        check_int("max_neighbors", max_neighbors, 1, n_nodes - 1)
+        free_half_width = min(layout.length_m, layout.width_m) / 2 - params.agent_radius_m
+        check_range("wall_clearance_m", wall_clearance_m, 0.0, free_half_width)
+        check_range("avoid_radius_m", avoid_radius_m, 0.0, low_open=True)
+        check_range("avoid_weight", avoid_weight, 0.0, 1000.0)
+        check_range("waypoint_tolerance_m", waypoint_tolerance_m, 0.0, connection_radius_m)
+        check_range("predict_horizon_s", predict_horizon_s, 0.0, 60.0)
+
+    def _prepare_edges(self) -> None:
+        """The roadmap's nodes and edges as the broadcast shapes planning uses, and the solver's node slabs."""
         nodes, neighbors, edge_length = self.roadmap
         n_kept = len(nodes)
         self._node_x, self._node_y = nodes[:, 0, None, None], nodes[:, 1, None, None]  # (M, 1, 1)
@@ -192,15 +216,6 @@ class PRMOpponent(Opponent):
         self._whole = [(0, n_kept, self._neighbors_flat)]
         # Each round lowers some cost or ends the solve; a cheapest path visits each node once.
         self._max_rounds = n_kept + 1
-
-        n_agents, n_controlled = env.n_agents, len(self.controlled)
-        self._others = torch.ones(n_controlled, n_agents, 1, dtype=torch.bool, device=env.device)
-        self._others[torch.arange(n_controlled), self._controlled_index] = False
-        # One controlled agent among two avoids just the other one: a slice instead of a reduction.
-        self._only_other = 1 - self.controlled[0] if n_agents == 2 and n_controlled == 1 else None
-
-        self.last_rounds = 0
-        self._buffers: dict[str, torch.Tensor] = {}
 
     # ---- roadmap ------------------------------------------------------------------------------------------------
 
@@ -323,21 +338,30 @@ class PRMOpponent(Opponent):
         present: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """Worlds last: waypoint (2, C, B), cost_to_goal (M, C, B), edge_cost (M, K, C, B), goal_cost (M, C, B)."""
-        controlled, radius = self._controlled_index, self.connection_radius_m
-        n_nodes, n_neighbors = self.roadmap.neighbors.shape
-        n_worlds, n_controlled = state.shape[0], len(self.controlled)
+        controlled = self._controlled_index
         # Worlds last and contiguous, (N, B): results of broadcasts then come out contiguous too.
         agent_x, agent_y = state[..., 0].t().contiguous(), state[..., 1].t().contiguous()
         present = self.present(state, goal, done, present).t().contiguous()
         avoided = self._avoided(state, agent_x, agent_y, present)
-        lanes = n_controlled * n_worlds
         node_x, node_y = self._node_x, self._node_y
         self_x, self_y = agent_x[controlled], agent_y[controlled]  # (C, B)
         from_self_x, from_self_y = node_x - self_x, node_y - self_y
         from_self = torch.hypot(from_self_x, from_self_y)  # (M, C, B)
 
-        # Each edge costs its length times 1 + avoid_weight × its closeness to the agents avoided, where they will
-        # be when the controlled agent reaches the edge's midpoint.
+        edge_cost = self._edge_cost(from_self, avoided)
+        goal_x, goal_y, goal_cost = self._goal_cost(goal, from_self, avoided)
+        cost_to_goal = self._solve(edge_cost, goal_cost)
+        best_cost, waypoint_node, at_goal_node = self._first_node(
+            state, self_x, self_y, from_self_x, from_self_y, from_self, avoided, cost_to_goal, edge_cost, goal_cost
+        )
+        waypoint = self._waypoint(
+            self_x, self_y, goal_x, goal_y, avoided, best_cost, waypoint_node, at_goal_node
+        )
+        return waypoint, cost_to_goal, edge_cost, goal_cost
+
+    def _edge_cost(self, from_self: torch.Tensor, avoided) -> torch.Tensor:
+        """(M, K, C, B): each edge's length times 1 + avoid_weight × its closeness to the agents avoided, where they
+        will be when the controlled agent reaches the edge's midpoint."""
         # Judged at the edge's start node plus half a typical edge: per node, not per edge, which is ~K times cheaper.
         edge_reach = (from_self + self._half_edge_m).unsqueeze(1)
         edge_near = self._closeness(
@@ -351,8 +375,13 @@ class PRMOpponent(Opponent):
         )
         edge_cost = self._buffer("edge_cost", edge_near.shape)  # (M, K, C, B)
         torch.addcmul(self._edge_length, self._edge_weight, edge_near, out=edge_cost)
+        return edge_cost
 
-        # Attach the goal to the nodes within the connection radius, or at least to the nearest.
+    def _goal_cost(self, goal: torch.Tensor, from_self: torch.Tensor, avoided):
+        """The goal attached to the nodes within the connection radius, or at least to the nearest: its position
+        (C, B) twice and the cost from each node to it (M, C, B)."""
+        controlled, radius = self._controlled_index, self.connection_radius_m
+        node_x, node_y = self._node_x, self._node_y
         goal_x = goal[:, controlled, 0].t().contiguous()  # (C, B)
         goal_y = goal[:, controlled, 1].t().contiguous()
         to_goal_x, to_goal_y = goal_x - node_x, goal_y - node_y  # (M, C, B)
@@ -365,10 +394,18 @@ class PRMOpponent(Opponent):
             "goal", node_x, node_y, to_goal_x, to_goal_y, inverse_sq, *avoided(from_self + 0.5 * to_goal)
         )
         goal_cost = torch.where(attached, to_goal * (1 + self.avoid_weight * goal_near), float("inf"))
+        return goal_x, goal_y, goal_cost
 
-        cost_to_goal = self._solve(edge_cost, goal_cost)
-
-        # Attach the agent the same way; its next waypoint starts its cheapest path, through a node or straight.
+    def _first_node(
+        self, state, self_x, self_y, from_self_x, from_self_y, from_self, avoided, cost_to_goal, edge_cost, goal_cost
+    ):
+        """The agent attached like the goal: the cheapest cost through a node (C, B), the node its next waypoint is
+        (C, B), and whether that waypoint is the goal itself."""
+        radius = self.connection_radius_m
+        node_x, node_y = self._node_x, self._node_y
+        n_nodes, n_neighbors = self.roadmap.neighbors.shape
+        n_controlled, n_worlds = self_x.shape
+        lanes = n_controlled * n_worlds
         candidate = from_self <= from_self.amin(0).clamp(min=radius)
         if len(self._boxes):
             candidate &= self._segment_clear(self_x, self_y, node_x, node_y)
@@ -391,7 +428,11 @@ class PRMOpponent(Opponent):
         goal_next = goal_cost.view(n_nodes, lanes)[best_node.view(-1), lane] <= after_best
         waypoint_node = torch.where(at_node, after_node, best_node.view(-1)).view(n_controlled, n_worlds)
         at_goal_node = (at_node & goal_next).view(n_controlled, n_worlds)
+        return best_cost, waypoint_node, at_goal_node
 
+    def _waypoint(self, self_x, self_y, goal_x, goal_y, avoided, best_cost, waypoint_node, at_goal_node):
+        """(2, C, B): the goal where it is reachable straight at no more cost, else the first node's position."""
+        radius = self.connection_radius_m
         straight_x, straight_y = goal_x - self_x, goal_y - self_y
         straight = torch.hypot(straight_x, straight_y)
         direct = straight <= radius
@@ -410,7 +451,7 @@ class PRMOpponent(Opponent):
                 torch.where(to_goal_now, goal_y, nodes[:, 1][waypoint_node]),
             ]
         )
-        return waypoint, cost_to_goal, edge_cost, goal_cost
+        return waypoint
 
     def _solve(self, edge_cost: torch.Tensor, goal_cost: torch.Tensor) -> torch.Tensor:
         """Cost-to-goal of every node (M, C, B): Bellman-Ford from scratch, relaxed block by block.
