@@ -1,4 +1,5 @@
-"""The one place where sidewalk touches TorchRL's private attributes, each for a job its public API cannot do.
+"""The one place where sidewalk touches private attributes of TorchRL (and of torch and tensordict), each for a job
+their public API cannot do.
 
 TorchRL may rename or drop a private attribute in any release. Every function here checks that the attributes it
 uses exist before it reads or writes them and raises a ``RuntimeError`` naming the TorchRL version and the missing
@@ -98,3 +99,12 @@ def multi_agent_mlp_last_layer(mlp: Any) -> str:
     layer). Why private: the MLP's layer stack is only exposed as its ``_empty_net`` template."""
     _require(mlp, ("_empty_net",), "find a MultiAgentMLP's output layer")
     return str(len(mlp._empty_net) - 1)
+
+
+def foreach_lerp_(targets: list, sources: list, weight: float) -> None:
+    """``target += weight * (source - target)`` for every pair in one call: a Polyak step over a network's tensors.
+    Why private: torch offers the fused multi-tensor lerp only as ``torch._foreach_lerp_``."""
+    import torch
+
+    _require(torch, ("_foreach_lerp_",), "take a Polyak step over all of a network's tensors in one call")
+    torch._foreach_lerp_(targets, sources, weight)
