@@ -3,6 +3,7 @@
     python runners/bench.py                    # the env, planning and views sections
     python runners/bench.py env --num-envs 4096 --threads 1
     python runners/bench.py planning views
+    python runners/bench.py planning --num-envs 128 1024 --baseline ../other-checkout   # ms per plan, this ÷ that
     python runners/bench.py training           # ~1 h: time to 3 evaluations >= 0.9, ours vs Stable-Baselines3 DQN
     python runners/bench.py learners --opponent prm    # hours: our TRPO/PPO vs sb3-contrib TRPO / SB3 PPO
     python runners/bench.py geometry           # ~6 min: what the continuous geometry allows (untrained success, ...)
@@ -12,9 +13,10 @@
     python runners/bench.py multiagent         # ~12 min: IPPO training frames/s, ours vs TorchRL's VMAS example
 
 Sections: ``env`` (env-steps/s of both domains beside VMAS give_way), ``planning`` (µs per plan per world of the
-scripted planners beside scipy), ``views`` (env-steps/s of the learner views with their opponents), ``training``
-(training time to three evaluations in a row with ego success ≥ 0.9 against Dijkstra at noise 0.1, frames/s and
-cost per gradient step, our DQN beside SB3's; not run by default),
+scripted planners beside scipy; with ``--baseline``, a checkout directory or revision, CPU ms per plan of both
+trees' planners and their ratio: ``--repeats``, ``--seconds``), ``views`` (env-steps/s of the learner views with
+their opponents), ``training`` (training time to three evaluations in a row with ego success ≥ 0.9 against
+Dijkstra at noise 0.1, frames/s and cost per gradient step, our DQN beside SB3's; not run by default),
 ``learners`` (final ego success of our TRPO and PPO beside sb3-contrib's TRPO and SB3's PPO on the continuous
 sidewalk at equal seeds and frames; not run by default), ``geometry`` (untrained-policy success, scripted returns
 and the PRM agent passing an ego, at the continuous defaults; not run by default), ``budget`` (where an

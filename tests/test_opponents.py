@@ -2,11 +2,13 @@
 
 Each is checked three ways: against scipy's Dijkstra on the same graph and costs (the batched planning is exact),
 against itself one world at a time (batching changes nothing), and in rollouts with the ego standing still out
-of the way (the planner reaches its goal around it and never crashes into a wall).
+of the way (the planner reaches its goal around it and never crashes into a wall). The PRM's plans also equal, to
+the bit, those of a plain per-world reference written from its docstring (its fast solver changes nothing).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -308,6 +310,135 @@ def test_prm_costs_equal_scipy_and_batching_changes_nothing(layout, controlled, 
         alone = opponent.plan(state[world : world + 1], goal[world : world + 1], done[world : world + 1])
         assert torch.equal(alone.cost_to_goal[0], plan.cost_to_goal[world])
         assert torch.equal(alone.waypoint[0], plan.waypoint[world])
+
+
+def reference_prm_plan(opponent: PRMOpponent, state, goal, done) -> tuple[torch.Tensor, torch.Tensor]:
+    """The PRM's waypoints (B, C, 2) and costs-to-goal (B, C, M) written plainly from its docstring, one world
+    and controlled agent at a time: every segment priced against where the other present agents will be,
+    Bellman-Ford rounds over the whole roadmap until nothing changes, then the waypoint rules, ties to the first
+    node. The arithmetic follows the planner's order (fused multiply-adds where it fuses), so its costs, and so
+    its choices, match to the bit."""
+    from sidewalk.opponents import prm
+
+    p, layout = opponent.env.params, opponent.env.layout
+    w, radius = opponent.avoid_weight, opponent.connection_radius_m
+    high = (layout.length_m - p.agent_radius_m, layout.width_m - p.agent_radius_m)
+    nodes, neighbors, edge_length = opponent.roadmap
+    real = edge_length.isfinite()
+    edge_delta = nodes[neighbors] - nodes[:, None]  # (M, K, 2)
+    edge_inverse_sq = torch.where(real, 1.0 / edge_length.square(), 0.0)
+    half_edge_m = float(edge_length[real].mean()) / 2
+    present = opponent.present(state, goal, done)
+    boxes = torch.tensor(layout.boxes).reshape(-1, 4)
+
+    def clear(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """Bool: an agent walking straight from a to b (..., 2) touches no interior box."""
+        return prm._segment_clear(boxes, p.agent_radius_m, radius, a[..., 0], a[..., 1], b[..., 0], b[..., 1])
+
+    def where_then(world: int, agent: int, metres: torch.Tensor) -> torch.Tensor:
+        """(..., 2) where ``agent`` will be when the planner has walked ``metres``."""
+        x, y, speed, heading = state[world, agent]
+        seconds = metres.clamp(max=opponent.predict_horizon_s * p.max_speed_mps) * (1.0 / p.max_speed_mps)
+        ahead_x = torch.addcmul(x, seconds, speed * torch.cos(heading)).clamp(p.agent_radius_m, high[0])
+        ahead_y = torch.addcmul(y, seconds, speed * torch.sin(heading)).clamp(p.agent_radius_m, high[1])
+        return torch.stack([ahead_x, ahead_y], -1)
+
+    def closeness(world, me, start, delta, inverse_sq, metres) -> torch.Tensor:
+        """Of segments start + [0, 1] delta (..., 2) to the other present agents, as the planner defines it."""
+        total = torch.zeros(delta.shape[:-1])
+        for other in range(state.shape[1]):
+            if other == me or not present[world, other]:
+                continue
+            (dx, dy), (fx, fy) = delta.unbind(-1), (where_then(world, other, metres) - start).unbind(-1)
+            along = ((fx * dx).addcmul(fy, dy) * inverse_sq).clamp(0.0, 1.0)
+            gap = ((fx - along * dx).square() + (fy - along * dy).square()).sqrt()
+            contact_m = 2 * p.agent_radius_m + prm.CONTACT_MARGIN_M
+            contact = ((contact_m - gap) * (1.0 / prm.CONTACT_RAMP_M)).clamp(0.0, 1.0)
+            near = (gap * (-1.0 / opponent.avoid_radius_m) + 1.0).clamp(min=0.0)
+            total = torch.maximum(total, near.add(contact, alpha=prm.CONTACT_CLOSENESS))
+        return total
+
+    def attachment(world, me, start, end, walked_m=0.0) -> tuple[torch.Tensor, torch.Tensor]:
+        """(length, closeness) of straight walks from start to end (..., 2), judged at their middle, reached
+        after ``walked_m`` more."""
+        length = torch.hypot(*(end - start).unbind(-1))
+        inverse_sq = length.square().clamp(min=1e-12).reciprocal()
+        return length, closeness(world, me, start, end - start, inverse_sq, walked_m + 0.5 * length)
+
+    def first_min(values: torch.Tensor) -> int:
+        return int((values == values.min()).nonzero()[0])
+
+    waypoints = torch.zeros(state.shape[0], len(opponent.controlled), 2)
+    costs = torch.zeros(state.shape[0], len(opponent.controlled), len(nodes))
+    for world, (k, me) in itertools.product(range(state.shape[0]), enumerate(opponent.controlled)):
+        here, there = state[world, me, :2], goal[world, me]
+        from_self, self_near = attachment(world, me, here, nodes)
+        edge_reach = from_self[:, None] + half_edge_m
+        near = closeness(world, me, nodes[:, None], edge_delta, edge_inverse_sq, edge_reach)
+        edge_cost = torch.addcmul(edge_length, torch.where(real, edge_length * w, 0.0), near)
+        to_goal, goal_near = attachment(world, me, nodes, there, walked_m=from_self)
+        attached = (to_goal <= to_goal.min().clamp(min=radius)) & clear(nodes, there)
+        goal_cost = torch.where(attached, to_goal * (1 + w * goal_near), float("inf"))
+        cost = goal_cost
+        while not torch.equal(relaxed := torch.minimum(goal_cost, (edge_cost + cost[neighbors]).amin(1)), cost):
+            cost = relaxed
+        costs[world, k] = cost
+        candidate = (from_self <= from_self.min().clamp(min=radius)) & clear(here, nodes)
+        via = torch.where(candidate, from_self * (1 + w * self_near) + cost, float("inf"))
+        best = node = first_min(via)
+        goal_after_node = False
+        if from_self[best] < opponent.waypoint_tolerance_m:
+            after = edge_cost[best] + cost[neighbors[best]]
+            node, goal_after_node = int(neighbors[best, first_min(after)]), bool(goal_cost[best] <= after.min())
+        straight, straight_near = attachment(world, me, here, there)
+        direct = straight <= radius and bool(clear(here, there))
+        direct_cost = straight * (1 + w * straight_near) if direct else float("inf")
+        waypoints[world, k] = there if bool(direct_cost <= via[best]) or goal_after_node else nodes[node]
+    return waypoints, costs
+
+
+@pytest.mark.parametrize(
+    "layout, controlled, num_worlds, moving",
+    [(None, (OTHER,), 40, True), (None, (OTHER,), 300, True), (THREE_AGENTS_AND_A_BOX, (1, 2), 24, True),
+     (THREE_AGENTS_AND_A_BOX, (1, 2), 300, False)],
+    ids=["sidewalk-few-worlds", "sidewalk-many-worlds", "three-agents-and-a-box", "three-agents-standing"],
+)  # fmt: skip
+def test_prm_plans_as_a_plain_reference_does(layout, controlled, num_worlds, moving):
+    # Few and many worlds take the solver's two relaxation orders, and many worlds price edges in several chunks;
+    # random states have agents absent, and moving (or all standing, as after a reset: nothing to predict).
+    extra = {} if layout is None else {"layout": layout}
+    env = ContinuousSidewalkEnv(num_envs=1, seed=21, **extra)
+    opponent = PRMOpponent(env, controlled=controlled)
+    state, goal, done = random_plane_states(env, num_worlds, seed=22)
+    speed = torch.rand(num_worlds, env.n_agents, generator=torch.Generator().manual_seed(23))
+    state[..., 2] = env.params.max_speed_mps * speed * moving
+    waypoint, cost_to_goal = reference_prm_plan(opponent, state, goal, done)
+    plan = opponent.plan(state, goal, done)
+    assert torch.equal(plan.cost_to_goal, cost_to_goal)
+    assert torch.equal(plan.waypoint, waypoint)
+    # The controller, fed the reference's waypoints laid out as the planner's (vectorised cos and atan2 may round
+    # differently on other layouts), gives the same actions.
+    steered = opponent._steer(state, goal, done, waypoint.permute(2, 1, 0).contiguous())
+    assert torch.equal(opponent.act(state, goal, done), steered)
+
+
+def test_prm_plans_as_a_plain_reference_does_along_a_rollout():
+    env = ContinuousSidewalkEnv(num_envs=64, seed=24)
+    opponent, ego = PRMOpponent(env), RandomOpponent(env, controlled=(EGO,), ego=None)
+    tensordict = env.reset()
+    for step in range(40):
+        if step % 8 == 0:  # the ego starts on the planner's goal: the solver's hardest worlds come first
+            inputs = [tensordict["agents", key] for key in ("state", "goal", "done")]
+            plan, (waypoint, cost_to_goal) = opponent.plan(*inputs), reference_prm_plan(opponent, *inputs)
+            assert torch.equal(plan.waypoint, waypoint) and torch.equal(plan.cost_to_goal, cost_to_goal)
+        _, tensordict = env.step_and_maybe_reset(ego(opponent(tensordict)))
+
+
+def test_prm_roadmap_is_built_once_per_layout():
+    first = PRMOpponent(ContinuousSidewalkEnv(num_envs=1, seed=3))
+    second = PRMOpponent(ContinuousSidewalkEnv(num_envs=8, seed=3), controlled=(0,), ego=1)
+    assert first.roadmap.nodes is second.roadmap.nodes
+    assert PRMOpponent(ContinuousSidewalkEnv(num_envs=1, seed=4)).roadmap.nodes is not first.roadmap.nodes
 
 
 def test_prm_reaches_its_goal_past_a_parked_ego_and_never_hits_a_wall():

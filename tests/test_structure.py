@@ -14,8 +14,9 @@ MAX_FUNCTION_LINES = 80
 MAX_MODULE_LINES = {"experiment.py": 400, **{f"views/{p.name}": 400 for p in (PACKAGE / "views").glob("*.py")}}
 ADAPTER = PACKAGE / "_torchrl.py"
 # Private names of other libraries that are theirs to offer to subclasses or resolvers, not TorchRL internals:
-# Stable-Baselines3's VecEnv._get_indices (for VecEnv subclasses) and OmegaConf's node API given to resolvers.
-NOT_TORCHRL = {"_get_indices", "_get_node", "_is_interpolation", "_key"}
+# Stable-Baselines3's VecEnv._get_indices (for VecEnv subclasses), OmegaConf's node API given to resolvers, and
+# NamedTuple's public _replace.
+NOT_TORCHRL = {"_get_indices", "_get_node", "_is_interpolation", "_key", "_replace"}
 
 
 def parsed(path: Path) -> ast.Module:
