@@ -231,7 +231,7 @@ def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], d
         items = [str(item) for item in spec]
     if not items:
         raise CrossplayError("--partners is empty; give scripted opponents' names and/or run folders")
-    scripted = [name for name in available_opponents(domain) if name != "policy"]  # a run folder names a learned one
+    scripted = available_opponents(domain, scripted_only=True)  # a run folder names a learned one
     known = {player.path.resolve(): player for player in rows}
     columns: list[Column] = []
 

@@ -43,7 +43,7 @@ from torch import nn
 
 from sidewalk._checks import check_choice, check_int
 from sidewalk.bench.common import compose_experiment, format_table, sb3_vec_env, torch_threads
-from sidewalk.config import opponent_domains
+from sidewalk.opponents.base import available_opponents
 
 ENV_ID = "sidewalk/Continuous-v0"
 # name → (algorithm, library)
@@ -54,9 +54,7 @@ LEARNERS = {
     "sb3-ppo": ("ppo", "sb3"),
 }
 SETUPS = ("defaults", "matched")
-OPPONENTS = tuple(
-    name for name, domains in opponent_domains().items() if "continuous" in domains and name not in ("policy", "self")
-)
+OPPONENTS = (*available_opponents("continuous", scripted_only=True), "centralized")
 SEEDS = (0, 1, 2)
 NOISE = 0.01
 OURS_SETUP = "conf"  # our learners run the config whatever the peers' setup

@@ -38,6 +38,7 @@ class Opponent(TensorDictModuleBase):
 
     name: ClassVar[str | None] = None  # the config choice (``opponent=NAME``); a class with a name registers itself
     domains: ClassVar[tuple[str, ...]] = ("discrete", "continuous")  # the domains it plays
+    scripted: ClassVar[bool] = True  # False: a learned partner, which needs a run folder to play
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -114,9 +115,11 @@ def opponent_class(name: str) -> type[Opponent]:
     return OPPONENTS[name]
 
 
-def available_opponents(domain: str | None = None) -> list[str]:
-    """Names of the registered opponents, optionally only those playing ``domain``."""
-    return OPPONENTS.names(lambda cls: domain is None or domain in cls.domains)
+def available_opponents(domain: str | None = None, scripted_only: bool = False) -> list[str]:
+    """Names of the registered opponents, optionally only those playing ``domain``, or only the scripted ones."""
+    return OPPONENTS.names(
+        lambda cls: (domain is None or domain in cls.domains) and (cls.scripted or not scripted_only)
+    )
 
 
 def make_opponent(

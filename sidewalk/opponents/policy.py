@@ -241,6 +241,7 @@ class PolicyOpponent(Opponent):
     """
 
     name = "policy"
+    scripted = False
 
     def __init__(
         self,
