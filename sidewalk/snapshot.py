@@ -11,6 +11,8 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase
 
+from sidewalk.opponents.base import ReplicaOpponent
+
 
 def _tensor_attributes(obj: Any) -> dict[str, Any]:
     """An object's tensor, tensordict and dict-of-tensor attributes, plus its ``None`` ones (unset memories)."""
@@ -24,11 +26,17 @@ def _tensor_attributes(obj: Any) -> dict[str, Any]:
 
 
 def capture_env(view: EnvBase) -> dict[str, Any]:
-    """The running state of a view, its core env and its opponent: every world mid-episode, the generator."""
+    """The running state of a view, its core env and its opponent: every world mid-episode, the generator (a
+    replicated core's: the list of its replicas' generators; a ``ReplicaOpponent``: each replica's opponent too)."""
     core = view.core
-    state = {"view": _tensor_attributes(view), "core": _tensor_attributes(core), "rng": core.generator.get_state()}
-    if getattr(view, "opponent", None) is not None:
-        state["opponent"] = _tensor_attributes(view.opponent)
+    generators = getattr(core, "generators", [core.generator])
+    rng = core.generator.get_state() if len(generators) == 1 else [g.get_state() for g in generators]
+    state = {"view": _tensor_attributes(view), "core": _tensor_attributes(core), "rng": rng}
+    opponent = getattr(view, "opponent", None)
+    if opponent is not None:
+        state["opponent"] = _tensor_attributes(opponent)
+        if isinstance(opponent, ReplicaOpponent):
+            state["opponent_replicas"] = [_tensor_attributes(each) for each in opponent.opponents]
     return state
 
 
@@ -39,7 +47,16 @@ def restore_env(view: EnvBase, state: dict[str, Any]) -> None:
         setattr(view.core, name, value)
     for name, value in state.get("opponent", {}).items():
         setattr(view.opponent, name, value)
-    view.core.generator.set_state(state["rng"])
+    replicas = getattr(getattr(view, "opponent", None), "opponents", ())
+    for opponent, attributes in zip(replicas, state.get("opponent_replicas", ())):
+        for name, value in attributes.items():
+            setattr(opponent, name, value)
+    rng = state["rng"]
+    generators = getattr(view.core, "generators", [view.core.generator])
+    if isinstance(rng, list) != (len(generators) > 1) or (isinstance(rng, list) and len(rng) != len(generators)):
+        raise ValueError(f"the snapshot's generator state does not fit an env of {len(generators)} replica(s)")
+    for generator, generator_state in zip(generators, rng if isinstance(rng, list) else [rng]):
+        generator.set_state(generator_state)
 
 
 def capture_rng() -> dict[str, Any]:

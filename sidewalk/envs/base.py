@@ -15,6 +15,13 @@ A subclass supplies the dynamics through four hooks, VMAS-style:
   every other world back exactly what the last output gave it. Random draws (observation noise) stay those of
   every world, whichever worlds reset, so that a seed fixes them.
 
+Replicas (``seed`` a sequence of R seeds): the env holds R independent copies of one experiment, replica ``r`` owning
+the worlds ``[r·B, (r+1)·B)`` (B = ``num_envs // R``) and its own generator, seeded with its seed. Every per-world
+random draw goes through ``rand``/``randint``/``sample_layout``, which draw each replica's block from its own
+generator exactly as a lone env of that seed and B worlds would, so replica ``r``'s worlds step bit for bit like that
+lone env; with one replica they are today's single draws. A reset draws only for the replicas with a world reset (a
+lone env is reset only when one of its worlds is), and every world it skips keeps the last output, cost included.
+
 Masks are materialised at (B, N) before use: mixing (B, N) with (B, 1) operands takes a broadcasting path that is
 several times slower than same-shape operands at thousands of worlds.
 
@@ -26,7 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -60,6 +67,23 @@ def new_output(
         return torch.empty_strided(shape, stride, dtype=dtype, device=device)
     memory = torch.from_numpy(np.empty(extent, dtype=torch.empty((), dtype=dtype).numpy().dtype))
     return memory.as_strided(shape, stride)
+
+
+def _replica_seeds(seed: Any, num_envs: int) -> list[int] | None:
+    """The replicas' seeds that ``seed`` gives (None: an int or None, one replica), checked against ``num_envs``."""
+    if seed is None or not isinstance(seed, Sequence) or isinstance(seed, str):
+        return None
+    seeds = list(seed)
+    if not seeds:
+        raise ValueError("seed=[]: give one seed per replica (at least one)")
+    for value in seeds:
+        check_int("seed", value)
+    if num_envs % len(seeds):
+        raise ValueError(
+            f"num_envs={num_envs} is not divisible by the {len(seeds)} replicas of seed={seeds}: num_envs counts the "
+            "worlds of every replica together"
+        )
+    return seeds
 
 
 def swap_in_reset(
@@ -104,6 +128,11 @@ class SidewalkEnvBase(EnvBase):
     terminated when all its agents are, and truncated when ``max_steps`` steps pass first. Parameters come
     as keyword overrides of the domain's ``Params`` dataclass; an unknown name or a bad value raises before
     anything is built.
+
+    ``seed`` is an int (or None: a fresh random seed), or a sequence of R ints: the env then holds R replicas, replica
+    ``r`` owning the ``worlds_per_replica`` worlds ``[r·B, (r+1)·B)`` of the ``num_envs`` (a multiple of R) and drawing
+    from ``generators[r]``, seeded with ``seed[r]``: its worlds step bit for bit as a lone env of that seed and B
+    worlds (see the module docstring). ``seed=[s]`` is ``seed=s``.
     """
 
     Params: ClassVar[type]
@@ -115,11 +144,12 @@ class SidewalkEnvBase(EnvBase):
         num_envs: int = 1,
         *,
         device: str | torch.device = "cpu",
-        seed: int | None = None,
+        seed: int | Sequence[int] | None = None,
         params: Any = None,
         **overrides: Any,
     ) -> None:
         check_int("num_envs", num_envs, 1)
+        seeds = _replica_seeds(seed, num_envs)
         if params is None:
             overrides = self.with_room(overrides)
         if isinstance(overrides.get("rewards"), Mapping):
@@ -129,11 +159,11 @@ class SidewalkEnvBase(EnvBase):
         self.num_envs = num_envs
         self.layout = self._make_layout()
         self.n_agents = self.layout.n_agents
-        self._generator = torch.Generator(device=self.device)
-        if seed is None:
-            self._generator.seed()
-        else:
-            self._generator.manual_seed(seed)
+        self.replicas = 1 if seeds is None else len(seeds)
+        self.worlds_per_replica = num_envs // self.replicas
+        self.generators = [torch.Generator(device=self.device) for _ in range(self.replicas)]
+        self._generator = self.generators[0]
+        self._set_seed(seed if seeds is None else seeds)
 
         rewards: RewardParams = self.params.rewards
         self._shaping_mask = rewards.shaping_mask(self.n_agents, self.device)
@@ -145,6 +175,7 @@ class SidewalkEnvBase(EnvBase):
         self._steps = torch.zeros(num_envs, dtype=torch.long, device=self.device)
         # The observation, state and goal entries of the last output; a partial reset recomputes only its worlds.
         self._last_observed: dict[str, torch.Tensor] | None = None
+        self._last_cost: torch.Tensor | None = None  # the last output's cost, which worlds a reset skips keep
         # (N, N, 1): pairs of two different agents, for pairwise checks run agent-major, (N, N, B): broadcasting over
         # a long last axis is faster than over a trailing axis of 2 agents.
         self._not_self = ~torch.eye(self.n_agents, dtype=torch.bool, device=self.device).unsqueeze(-1)
@@ -240,8 +271,20 @@ class SidewalkEnvBase(EnvBase):
 
     # ---- TorchRL interface --------------------------------------------------------------------------------------
 
-    def _set_seed(self, seed: int | None) -> None:
-        if seed is None:
+    def _set_seed(self, seed: int | Sequence[int] | None) -> None:
+        """Seed the generator (one replica: an int, or None for a fresh random seed), or each replica's with its own
+        seed (R replicas: a sequence of R ints; through TorchRL, ``env.set_seed(seeds, static_seed=True)``)."""
+        if isinstance(seed, Sequence) and not isinstance(seed, str):
+            if len(seed) != self.replicas:
+                raise ValueError(f"{len(seed)} seeds {list(seed)} for an env of {self.replicas} replicas")
+            for generator, replica_seed in zip(self.generators, seed):
+                generator.manual_seed(int(replica_seed))
+        elif self.replicas > 1:
+            raise ValueError(
+                f"seed={seed!r}: an env of {self.replicas} replicas takes a sequence of {self.replicas} seeds, one per "
+                "replica (env.set_seed([...], static_seed=True))"
+            )
+        elif seed is None:
             self._generator.seed()
         else:
             self._generator.manual_seed(int(seed))
@@ -331,7 +374,8 @@ class SidewalkEnvBase(EnvBase):
         self, reward: torch.Tensor | None, rows: torch.Tensor | None, cost: torch.Tensor | None = None
     ) -> TensorDictBase:
         """The env's output for every world, from the current state; ``rows`` (B,) marks the worlds a reset reset;
-        ``cost`` (B, N) bool: who paid the safety cost in the step (None on reset: nobody)."""
+        ``cost`` (B, N) bool: who paid the safety cost in the step (None on reset: nobody in the worlds reset, the
+        others keep the last step's)."""
         agents_shape = torch.Size((*self.batch_size, self.n_agents))
         terminated = ~self._active
         all_terminated = terminated.all(-1)
@@ -342,10 +386,14 @@ class SidewalkEnvBase(EnvBase):
         world_truncated = timeout & ~all_terminated
         entries = self._observations(rows)
         entries["present"] = self._present.unsqueeze(-1)
-        entries["cost"] = (
-            cost.to(torch.float32).unsqueeze(-1) if cost is not None
-            else torch.zeros((*agents_shape, 1), device=self.device)
-        )
+        if cost is not None:
+            entries["cost"] = cost.to(torch.float32).unsqueeze(-1)
+        elif rows is None or self._last_cost is None:
+            entries["cost"] = torch.zeros((*agents_shape, 1), device=self.device)
+        else:
+            # Worlds a partial reset skips keep the last step's output, cost included, as a lone env's would.
+            entries["cost"] = self._last_cost.masked_fill(rows.view(-1, 1, 1), 0.0)
+        self._last_cost = entries["cost"]
         entries["info"] = new_tensordict_unchecked(
             {key: value.unsqueeze(-1) for key, value in self._status.items()}, batch_size=agents_shape
         )
@@ -395,8 +443,57 @@ class SidewalkEnvBase(EnvBase):
 
     @property
     def generator(self) -> torch.Generator:
-        """The env's random generator: opponents and views draw from it so that one seed fixes everything."""
+        """The first replica's generator: with one replica, the env's, from which opponents and views may draw so that
+        one seed fixes everything. With several replicas every per-world draw must go through ``rand``/``randint``
+        (or an opponent built per replica, whose env proxy holds its replica's generator)."""
         return self._generator
+
+    # ---- per-world random draws, replica by replica ---------------------------------------------------------
+
+    def rand(self, shape: Sequence[int], rows: torch.Tensor | None = None) -> torch.Tensor:
+        """Uniform [0, 1) float32 of ``shape``, whose first dimension is the worlds (``num_envs``). One replica:
+        ``torch.rand(shape, generator=env.generator)``. R replicas: each draws its (B, ...) block from its own
+        generator; with ``rows`` (bool (num_envs,): the worlds that use the draw, as on a partial reset) only the
+        replicas holding one of those rows draw (a lone env is reset only when one of its worlds is), the other
+        blocks are zeros."""
+        return self._draw(torch.rand, (), torch.float32, shape, rows)
+
+    def randint(self, high: int, shape: Sequence[int], rows: torch.Tensor | None = None) -> torch.Tensor:
+        """Uniform int64 in [0, ``high``) of ``shape``, drawn replica by replica as ``rand`` draws."""
+        return self._draw(torch.randint, (high,), torch.int64, shape, rows)
+
+    def _draw(
+        self, draw: Any, args: tuple, dtype: torch.dtype, shape: Sequence[int], rows: torch.Tensor | None
+    ) -> torch.Tensor:
+        shape = torch.Size(shape)
+        if self.replicas == 1:
+            return draw(*args, shape, generator=self._generator, device=self.device)
+        if shape[0] != self.num_envs:
+            raise ValueError(f"a per-world draw of shape {tuple(shape)} on an env of {self.num_envs} worlds")
+        block = (self.worlds_per_replica, *shape[1:])
+        drawing = self.replicas_of(rows)
+        return torch.cat([
+            draw(*args, block, generator=generator, device=self.device) if drawing[r]
+            else torch.zeros(block, dtype=dtype, device=self.device)
+            for r, generator in enumerate(self.generators)
+        ])
+
+    def replicas_of(self, rows: torch.Tensor | None) -> list[bool]:
+        """Per replica, whether it holds one of the worlds ``rows`` (bool (num_envs,); None: every world)."""
+        if rows is None:
+            return [True] * self.replicas
+        return rows.view(self.replicas, self.worlds_per_replica).any(1).tolist()
+
+    def sample_layout(self, worlds: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """A random layout's draws (``layout.sample``) for the worlds ``worlds`` (int64 (k,), ascending): one call
+        for one replica; else one per replica holding some of them, on its generator, concatenated in world order."""
+        if self.replicas == 1:
+            return self.layout.sample(worlds.numel(), self._generator)
+        counts = torch.bincount(worlds // self.worlds_per_replica, minlength=self.replicas).tolist()
+        parts = [self.layout.sample(count, generator) for count, generator in zip(counts, self.generators) if count]
+        if not parts:
+            return self.layout.sample(0, self._generator)
+        return tuple(torch.cat(pieces) for pieces in zip(*parts))
 
     def params_dict(self) -> dict[str, Any]:
         """The env's parameters as a plain (nested) dict, for logging and config files."""

@@ -239,7 +239,7 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         else:
             # A random layout draws only the worlds being reset: with auto-reset, a few worlds a step.
             worlds = reset[:, 0].nonzero().squeeze(-1)
-            starts, goals = self.layout.sample(worlds.numel(), self._generator)
+            starts, goals = self.sample_layout(worlds)
             for name, value in (("_row", starts[..., 0]), ("_col", starts[..., 1]),
                                 ("_goal_row", goals[..., 0]), ("_goal_col", goals[..., 1])):
                 setattr(self, name, getattr(self, name).index_copy(0, worlds, value))
@@ -260,8 +260,8 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
     def _advance(self, action: torch.Tensor, active: torch.Tensor):
         noise = self.params.noise
         if noise > 0.0:
-            replace = torch.rand(action.shape, generator=self._generator, device=self.device) < noise
-            random_action = torch.randint(len(ACTIONS), action.shape, generator=self._generator, device=self.device)
+            replace = self.rand(action.shape) < noise
+            random_action = self.randint(len(ACTIONS), action.shape)
             action = torch.where(replace, random_action, action)
 
         row, col = self._row, self._col

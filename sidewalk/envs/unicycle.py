@@ -163,7 +163,7 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         else:
             # A random layout draws only the worlds being reset: with auto-reset, a few worlds a step.
             worlds = reset[:, 0].nonzero().squeeze(-1)
-            starts, headings, goals = self.layout.sample(worlds.numel(), self._generator)
+            starts, headings, goals = self.sample_layout(worlds)
             wrapped = torch.remainder(headings + math.pi, 2 * math.pi) - math.pi
             for name, value in (("_x", starts[..., 0]), ("_y", starts[..., 1]), ("_goal_x", goals[..., 0]),
                                 ("_goal_y", goals[..., 1]), ("_heading", wrapped)):
@@ -172,10 +172,13 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         self._present = self._present | reset
 
     def _uniform_noise(self, shape: torch.Size, rows: torch.Tensor | None = None) -> torch.Tensor:
-        """Uniform ±noise of ``shape``; with ``rows``, drawn for the whole shape but only those rows kept."""
-        noise = torch.rand(shape, generator=self._generator, device=self.device)
-        if rows is not None:
-            noise = noise.index_select(0, rows)
+        """Uniform ±noise of ``shape``; with ``rows`` (int64 worlds), drawn for the whole shape (of the replicas
+        holding those worlds: ``rand``) but only those rows kept."""
+        if rows is None:
+            noise = self.rand(shape)
+        else:
+            drawn = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device).index_fill_(0, rows, True)
+            noise = self.rand(shape, drawn).index_select(0, rows)
         return (2.0 * noise - 1.0) * self.params.noise
 
     def _check_finite(self, action: torch.Tensor) -> None:

@@ -1,5 +1,9 @@
 """The common shape of every opponent: a TensorDict module that plays some agents of a Sidewalk env, and the
-registry of opponents by name (``sidewalk.registry.OPPONENTS``), which every subclass with a ``name`` joins."""
+registry of opponents by name (``sidewalk.registry.OPPONENTS``), which every subclass with a ``name`` joins.
+
+On a replicated env (several seeds in one core, ``env.replicas`` > 1) ``make_opponent`` gives each replica's worlds the
+play a lone env of that seed would get, as each opponent class declares (``per_replica``, ``batch_invariant``): one
+opponent for every world, or a ``ReplicaOpponent`` that hands each replica's block of worlds to its own opponent."""
 
 from __future__ import annotations
 
@@ -13,6 +17,7 @@ from tensordict.nn import TensorDictModuleBase
 
 from sidewalk._checks import check_int
 from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase
+from sidewalk.opponents.replicas import ReplicaEnv
 from sidewalk.registry import OPPONENTS
 
 STATE_KEY = (AGENT_GROUP, "state")
@@ -26,7 +31,8 @@ class Opponent(TensorDictModuleBase):
     """Writes the actions of the ``controlled`` agents into ``("agents", "action")``, for all worlds at once.
 
     An opponent reads only what the env exposes: the true state and goals of every agent, who is done, the
-    layout and the env's parameters, and it draws randomness from ``env.generator`` so that one seed fixes a run.
+    layout and the env's parameters, and it draws randomness from ``env.generator`` (or per world through
+    ``env.rand``/``env.randint``) so that one seed fixes a run.
     ``ego`` names the agent it plays against (the learner), or ``None``. Entries of agents it does not control
     are left as they are, so an opponent can fill in around a learner's action.
 
@@ -39,6 +45,13 @@ class Opponent(TensorDictModuleBase):
     name: ClassVar[str | None] = None  # the config choice (``opponent=NAME``); a class with a name registers itself
     domains: ClassVar[tuple[str, ...]] = ("discrete", "continuous")  # the domains it plays
     scripted: ClassVar[bool] = True  # False: a learned partner, which needs a run folder to play
+    # On a replicated env: True builds one instance per replica, on a ReplicaEnv (that replica's worlds and generator),
+    # for opponents that draw from env.generator or build something from the env's seed; False: one instance for all
+    # replicas (it draws nothing, or draws through env.rand/env.randint, which split the worlds by replica).
+    per_replica: ClassVar[bool] = True
+    # True: one call plays every replica's worlds exactly as each replica's lone env would (per-world arithmetic);
+    # False (a network, whose kernels round differently at other batch sizes): each replica's block gets its own call.
+    batch_invariant: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -66,6 +79,12 @@ class Opponent(TensorDictModuleBase):
         self._controlled_index = torch.tensor(self.controlled, dtype=torch.long, device=env.device)
         # Opponents written before the env published "present" implement act(state, goal, done): they still work.
         self._act_takes_present = "present" in inspect.signature(self.act).parameters
+
+    @classmethod
+    def replicated(cls, **kwargs: Any) -> bool:
+        """Whether an opponent built with ``kwargs`` needs an instance per replica: ``per_replica``, unless a class
+        lets its arguments decide (the PRM's roadmap comes from the env's seed only without a ``roadmap_seed``)."""
+        return cls.per_replica
 
     def act(
         self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
@@ -103,10 +122,54 @@ class Opponent(TensorDictModuleBase):
         return tensordict
 
 
-def env_domain(env: SidewalkEnvBase) -> str:
-    """``"discrete"`` or ``"continuous"``."""
+class ReplicaOpponent(Opponent):
+    """Plays a replicated env (``env.replicas`` R > 1) with one opponent per replica: ``opponents[r]`` gets replica
+    ``r``'s block of B worlds (``act``, ``forward``, ``reset``), and the blocks' actions are concatenated in world
+    order. ``opponents`` are built on each replica's ``ReplicaEnv``, or are one instance on the whole env listed R
+    times (a network played block by block, so that each call has a lone env's batch). ``make_opponent`` builds it."""
+
+    def __init__(
+        self, env: SidewalkEnvBase, opponents: Sequence[Opponent], controlled: Sequence[int] = (1,), ego: int | None = 0
+    ) -> None:
+        super().__init__(env, controlled, ego)
+        if len(opponents) != env.replicas:
+            raise ValueError(f"{len(opponents)} opponents for an env of {env.replicas} replicas")
+        self.opponents = torch.nn.ModuleList(opponents)
+        self.in_keys = list(opponents[0].in_keys)
+        size = env.worlds_per_replica
+        self._blocks = [slice(r * size, (r + 1) * size) for r in range(env.replicas)]
+
+    def act(
+        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        actions = []
+        for opponent, block in zip(self.opponents, self._blocks):
+            inputs = [state[block], goal[block], done[block]]
+            if opponent._act_takes_present:
+                inputs.append(None if present is None else present[block])
+            actions.append(opponent.act(*inputs))
+        return torch.cat(actions)
+
+    def reset(self, rows: torch.Tensor | None = None) -> None:
+        for opponent, block in zip(self.opponents, self._blocks):
+            opponent.reset(None if rows is None else rows[block])
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        # Each opponent's own forward on its block (a learned partner reads observations, not act's inputs), every
+        # block given the joint action to fill in.
+        if tensordict.get(ACTION_KEY, None) is None:
+            tensordict.set(ACTION_KEY, self.env.full_action_spec[ACTION_KEY].zero())
+        joints = [opponent(tensordict[block]).get(ACTION_KEY) for opponent, block in zip(self.opponents, self._blocks)]
+        tensordict.set(ACTION_KEY, torch.cat(joints))
+        return tensordict
+
+
+def env_domain(env: SidewalkEnvBase | ReplicaEnv) -> str:
+    """``"discrete"`` or ``"continuous"`` (a replica's proxy: its core's)."""
     from sidewalk.envs.grid import DiscreteSidewalkEnv
 
+    if isinstance(env, ReplicaEnv):
+        env = env.core
     return "discrete" if isinstance(env, DiscreteSidewalkEnv) else "continuous"
 
 
@@ -127,7 +190,11 @@ def make_opponent(
 ) -> Opponent:
     """Build the opponent registered as ``name`` for ``env``, playing the ``controlled`` agents against ``ego``
     (``"policy"``: a learned partner, ``path=RUN_DIR``). Raises ``ValueError`` for an unknown name (listing the
-    valid ones) or an opponent that does not play the env's domain (listing those that do)."""
+    valid ones) or an opponent that does not play the env's domain (listing those that do).
+
+    On a replicated env (``env.replicas`` > 1) every replica's worlds are played as a lone env of its seed would
+    play them: by one opponent for all worlds when the class needs no instance per replica and is batch-invariant
+    (scripted planners: planned once for all), else by a ``ReplicaOpponent``."""
     cls = opponent_class(name)
     domain = env_domain(env)
     if domain not in cls.domains:
@@ -135,4 +202,12 @@ def make_opponent(
             f"opponent {name!r} plays the {' and '.join(cls.domains)} domain, not {domain!r}; "
             f"opponents for the {domain} domain: {', '.join(map(repr, available_opponents(domain)))}"
         )
-    return cls(env, controlled=controlled, ego=ego, **kwargs)
+    replicas = getattr(env, "replicas", 1)
+    per_replica = cls.replicated(**kwargs)
+    if replicas == 1 or (not per_replica and cls.batch_invariant):
+        return cls(env, controlled=controlled, ego=ego, **kwargs)
+    if per_replica:
+        opponents = [cls(ReplicaEnv(env, r), controlled=controlled, ego=ego, **kwargs) for r in range(replicas)]
+    else:
+        opponents = [cls(env, controlled=controlled, ego=ego, **kwargs)] * replicas
+    return ReplicaOpponent(env, opponents, controlled=controlled, ego=ego)

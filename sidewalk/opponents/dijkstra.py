@@ -67,6 +67,8 @@ class DijkstraOpponent(Opponent):
 
     name = "dijkstra"
     domains = ("discrete",)
+    per_replica = False  # no randomness, no per-world memory: one planner for every replica's worlds
+    batch_invariant = True  # whole-number path costs, exact whatever the batch
 
     def __init__(
         self,

@@ -242,6 +242,7 @@ class PolicyOpponent(Opponent):
 
     name = "policy"
     scripted = False
+    per_replica = False  # a frozen network, built from the run folder, not from the env's seed
 
     def __init__(
         self,

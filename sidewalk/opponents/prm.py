@@ -15,7 +15,7 @@ import functools
 import itertools
 import math
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import torch
 
@@ -206,6 +206,12 @@ class PRMOpponent(Opponent):
 
     name = "prm"
     domains = ("continuous",)
+    batch_invariant = True  # each world's plan is its own; steering splits by replica (tests/test_env_replicas.py)
+
+    @classmethod
+    def replicated(cls, **kwargs: Any) -> bool:
+        # Without roadmap_seed the roadmap comes from the env's seed: each replica needs its own.
+        return kwargs.get("roadmap_seed") is None
 
     def __init__(
         self,
@@ -279,7 +285,7 @@ class PRMOpponent(Opponent):
     ) -> torch.Tensor:
         # Planning never meets autograd: inference mode skips its bookkeeping.
         with torch.inference_mode():
-            action = self._steer(state, goal, done, self._plan(state, goal, done, present)[0])
+            action = self._steer_replicas(state, goal, done, self._plan(state, goal, done, present)[0])
         return action.clone()  # made outside inference mode: a tensor callers may write into
 
     def plan(
@@ -623,6 +629,21 @@ class PRMOpponent(Opponent):
         return flat[:numel].view(shape)
 
     # ---- control ------------------------------------------------------------------------------------------------
+
+    def _steer_replicas(
+        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, waypoint: torch.Tensor
+    ) -> torch.Tensor:
+        """``_steer`` of every world, on a replicated env (several seeds, one core) in one call per replica:
+        torch.atan2 rounds an angle by where it sits in the call (vectorised body or scalar tail), so each replica's
+        worlds are steered in a call of its lone env's shape. Plans are each world's own, whatever the batch."""
+        replicas = getattr(self.env, "replicas", 1)
+        if replicas == 1 or len(state) != self.env.num_envs:
+            return self._steer(state, goal, done, waypoint)
+        size = self.env.worlds_per_replica
+        blocks = [slice(r * size, (r + 1) * size) for r in range(replicas)]
+        return torch.cat([
+            self._steer(state[block], goal[block], done[block], waypoint[..., block].contiguous()) for block in blocks
+        ])
 
     def _steer(
         self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, waypoint: torch.Tensor

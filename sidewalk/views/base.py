@@ -47,6 +47,10 @@ class _SidewalkView(EnvBase):
         # The agents the shield guards: the learner's (every agent here; the ego view narrows it to the ego).
         self._shielded = torch.ones(env.n_agents, dtype=torch.bool, device=env.device)
         self._intervened: torch.Tensor | None = None
+        # Every agent's reward in the last output, and the worlds the last reset reset: the worlds a partial reset
+        # skips keep the last step's reward and shield flags, as a lone env of a replica's seed would.
+        self._last_reward: torch.Tensor | None = None
+        self._reset_worlds: torch.Tensor | None = None
         self.core = env
         self.n_agents = env.n_agents
         self.num_envs = env.num_envs
@@ -88,7 +92,8 @@ class _SidewalkView(EnvBase):
 
     @property
     def generator(self) -> torch.Generator:
-        """The core env's generator: the core, the opponent and the view all draw from it."""
+        """The core env's generator: the core, the opponent and the view all draw from it (with several replicas, the
+        first replica's; per-world draws go through the core's ``rand``/``randint``)."""
         return self.core.generator
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
@@ -97,7 +102,9 @@ class _SidewalkView(EnvBase):
         # last step left them (observation noise included), so this view's output is complete too.
         core_out = self.core._reset(tensordict)
         self._on_reset(rows)
-        self._intervened = None
+        if self._intervened is not None:
+            self._intervened = self._intervened & ~rows.unsqueeze(-1)
+        self._reset_worlds = rows
         self._last = core_out
         return self._output(core_out, reset=True)
 
@@ -132,6 +139,18 @@ class _SidewalkView(EnvBase):
 
     def _output(self, core_out: TensorDictBase, reset: bool) -> TensorDictBase:
         raise NotImplementedError
+
+    def _world_reward(self, agents: TensorDictBase, reset: bool) -> torch.Tensor:
+        """Every agent's reward (B, N, 1): the step's, or on a reset 0 in the worlds reset and the last output's in
+        the others."""
+        if not reset:
+            reward = agents.get("reward")
+        elif self._last_reward is None:
+            reward = torch.zeros((*self._agents_shape, 1), device=self.device)
+        else:
+            reward = self._last_reward.masked_fill(self._reset_worlds.view(-1, 1, 1), 0.0)
+        self._last_reward = reward
+        return reward
 
     def _world(self, agents: TensorDictBase, reward: torch.Tensor) -> TensorDictBase:
         extra = {}

@@ -88,9 +88,7 @@ class CentralizedView(_SidewalkView):
 
     def _output(self, core_out: TensorDictBase, reset: bool) -> TensorDictBase:
         agents = core_out.get(AGENT_GROUP)
-        reward = (
-            agents.get("reward") if not reset else torch.zeros((*self._agents_shape, 1), device=self.device)
-        )
+        reward = self._world_reward(agents, reset)
         out = new_tensordict_unchecked(
             {
                 "observation": agents.get("observation").select(1, 0),

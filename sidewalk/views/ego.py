@@ -110,9 +110,7 @@ class EgoView(_SidewalkView):
         agents = core_out.get(AGENT_GROUP)
         ego = self.ego
         info = agents.get("info")
-        reward = (
-            agents.get("reward") if not reset else torch.zeros((*self._agents_shape, 1), device=self.device)
-        )
+        reward = self._world_reward(agents, reset)
         if self.end_on_ego_done:
             done_source, index = agents, (slice(None), ego)
         else:

@@ -86,8 +86,9 @@ class SelfPlayView(_SidewalkView):
 
     def _on_reset(self, rows: torch.Tensor) -> None:
         if self.other_play:
-            # Drawn for every world and kept for the reset ones: the stream does not depend on which worlds reset.
-            draw = torch.rand(self._agents_shape, generator=self.generator, device=self.device) < 0.5
+            # Drawn for every world (of each replica with a world reset) and kept for the reset ones: the stream does
+            # not depend on which worlds reset.
+            draw = self.core.rand(self._agents_shape, rows) < 0.5
             draw[:, 0] = False
             self._mirrored = torch.where(rows.unsqueeze(-1), draw, self._mirrored)
 
@@ -109,9 +110,7 @@ class SelfPlayView(_SidewalkView):
 
     def _output(self, core_out: TensorDictBase, reset: bool) -> TensorDictBase:
         agents = core_out.get(AGENT_GROUP)
-        reward = (
-            agents.get("reward") if not reset else torch.zeros((*self._agents_shape, 1), device=self.device)
-        )
+        reward = self._world_reward(agents, reset)
         info = agents.get("info")
         crashed = info.get("collided_agent") | info.get("collided_wall")
         flags = {key: core_out.get(key) for key in ("done", "terminated", "truncated")}
