@@ -133,6 +133,30 @@ def _entropy(
         return -(ratio * log_prob)
 
 
+def mean_kl(
+    old_dist: torch.distributions.Distribution, dist: torch.distributions.Distribution
+) -> torch.Tensor:
+    """KL(old ‖ new) averaged over the last batch dimension (the samples): a scalar for one learner, (R,) for R."""
+    return kl_divergence(old_dist, dist).mean(-1)
+
+
+def surrogate_terms(
+    dist: torch.distributions.Distribution,
+    old_dist: torch.distributions.Distribution,
+    action: torch.Tensor,
+    old_log_prob: torch.Tensor,
+    advantage: torch.Tensor,
+    entropy_coef: float,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``TRPOLoss``'s terms, averaged over the last batch dimension (the samples), so that one learner's (N,) batch
+    and R replicas' (R, N) batches share the arithmetic: (minus the surrogate, mean KL(old ‖ new), entropy)."""
+    log_prob = dist.log_prob(action)
+    ratio = (log_prob - old_log_prob).exp()
+    entropy = _entropy(dist, log_prob, ratio).mean(-1)
+    surrogate = (ratio * advantage.reshape(ratio.shape)).mean(-1) + entropy_coef * entropy
+    return -surrogate, mean_kl(old_dist, dist), entropy.detach()
+
+
 class TRPOLoss(LossModule):
     """TRPO's objective for a stochastic ``actor_network`` (a ``ProbabilisticActor``), against a frozen old policy.
 
@@ -171,24 +195,19 @@ class TRPOLoss(LossModule):
         # A shallow copy, so the new policy's parameters are not written into the caller's tensordict.
         return self.actor_network.get_dist(tensordict.copy())
 
-    def _kl(self, tensordict: TensorDictBase, dist: torch.distributions.Distribution) -> torch.Tensor:
-        old_dist = self.actor_network.build_dist_from_params(tensordict.get(OLD_POLICY))
-        return kl_divergence(old_dist, dist).mean()
-
     def kl(self, tensordict: TensorDictBase) -> torch.Tensor:
         """Mean KL(old ‖ new) over ``tensordict``'s samples; differentiable in the actor's parameters."""
-        return self._kl(tensordict, self._dist(tensordict))
+        old_dist = self.actor_network.build_dist_from_params(tensordict.get(OLD_POLICY))
+        return mean_kl(old_dist, self._dist(tensordict))
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         dist = self._dist(tensordict)
-        log_prob = dist.log_prob(tensordict.get("action"))
-        ratio = (log_prob - tensordict.get("action_log_prob")).exp()
-        advantage = tensordict.get("advantage").reshape(ratio.shape)
-        entropy = _entropy(dist, log_prob, ratio).mean()
-        surrogate = (ratio * advantage).mean() + self.entropy_coef * entropy
-        return TensorDict(
-            loss_objective=-surrogate, kl=self._kl(tensordict, dist), entropy=entropy.detach(), batch_size=[]
+        old_dist = self.actor_network.build_dist_from_params(tensordict.get(OLD_POLICY))
+        loss_objective, kl, entropy = surrogate_terms(
+            dist, old_dist, tensordict.get("action"), tensordict.get("action_log_prob"),
+            tensordict.get("advantage"), self.entropy_coef,
         )
+        return TensorDict(loss_objective=loss_objective, kl=kl, entropy=entropy, batch_size=[])
 
     def fisher_operator(self, tensordict: TensorDictBase) -> Callable[[torch.Tensor], torch.Tensor]:
         """``v ↦ (F + cg_damping · I) v`` at the current parameters, F the Hessian of ``kl`` on ``tensordict``.

@@ -1,0 +1,119 @@
+"""Replicas: the update of R seeds of one learner, one after another (``algo.update`` in a loop) or all at once
+(``sidewalk.algos.stacked.vectorized_update``), in ms per iteration (all R updates), one torch thread.
+
+Each replica is the learner at its defaults on the continuous sidewalk's ego view against the random opponent
+(``default_num_envs`` worlds, seed r), with one collector batch of its own (``frames_per_batch`` frames: 2048 from
+128 worlds for TRPO and PPO). Both ways start from copies of the same learners and update them on the same batches,
+each iteration's time the median of ``repeats`` after one untimed warm-up iteration (the first creates Adam's state).
+
+    python -m sidewalk.bench.replicas                       # TRPO and PPO, R = 5
+    python -m sidewalk.bench.replicas --replicas 3 --learners trpo --repeats 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.collectors import Collector
+from torchrl.envs import EnvBase
+
+from sidewalk.algos.base import Algorithm
+from sidewalk.algos.stacked import vectorized_update
+from sidewalk.bench.common import torch_threads
+from sidewalk.envs import ContinuousSidewalkEnv
+from sidewalk.registry import LEARNERS
+from sidewalk.streams import ReplicaStreams
+from sidewalk.views import make_view
+
+LEARNER_NAMES = ("trpo", "ppo")
+
+
+def replica_learners(name: str, replicas: int) -> tuple[list[Algorithm], list[EnvBase]]:
+    """``replicas`` learners ``name`` at their defaults, replica r built on its own world (seed r) after
+    ``torch.manual_seed(r)``: calling it twice gives two identical sets (a deep copy of a PPO learner would not
+    be one: its optimiser keeps the original's parameters)."""
+    cls = LEARNERS.get(name)
+    config = cls.Config()
+    learners, envs = [], []
+    for seed in range(replicas):
+        env = make_view("ego", ContinuousSidewalkEnv(num_envs=config.default_num_envs, seed=seed), opponent="random")
+        torch.manual_seed(seed)
+        learners.append(cls(config, env))
+        envs.append(env)
+    return learners, envs
+
+
+def collect_batches(learners: Sequence[Algorithm], envs: Sequence[EnvBase]) -> list[TensorDictBase]:
+    """One collector batch (``frames_per_batch`` frames) per learner, collected by its own policy in its own env."""
+    batches = []
+    for learner, env in zip(learners, envs):
+        collector = Collector(env, learner.collection_policy(), frames_per_batch=learner.config.frames_per_batch,
+                              total_frames=-1, auto_register_policy_transforms=False)
+        batches.append(next(iter(collector)).clone())
+        collector.shutdown()
+    return batches
+
+
+def _median_ms(iteration: Callable[[], object], repeats: int) -> float:
+    iteration()  # warm-up: the first update creates the optimisers' state
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        iteration()
+        times.append(time.perf_counter() - start)
+    return 1e3 * statistics.median(times)
+
+
+def time_learner(name: str, replicas: int, repeats: int) -> dict[str, Any]:
+    """ms per iteration of ``replicas`` updates of learner ``name``, looped and stacked, from two identical sets."""
+    (looped, envs), (stacked, _) = replica_learners(name, replicas), replica_learners(name, replicas)
+    batches = collect_batches(looped, envs)
+    loop_streams, stacked_streams = ReplicaStreams(range(replicas)), ReplicaStreams(range(replicas))
+    updater = vectorized_update(stacked)
+    if updater is None:
+        raise RuntimeError(f"{name}: no stacked update for these learners")
+
+    def loop() -> None:
+        for replica, (algo, batch) in enumerate(zip(looped, batches)):
+            with loop_streams.use(replica):
+                algo.update(batch.clone())
+
+    def together() -> None:
+        updater.update([batch.clone() for batch in batches], stacked_streams)
+
+    loop_ms, stacked_ms = _median_ms(loop, repeats), _median_ms(together, repeats)
+    return {"learner": name, "replicas": replicas, "looped_ms": loop_ms, "stacked_ms": stacked_ms,
+            "speedup": loop_ms / stacked_ms}
+
+
+def time_stacked_updates(replicas: int = 5, repeats: int = 3, learners: Sequence[str] = LEARNER_NAMES
+                         ) -> list[dict[str, Any]]:
+    """ms per iteration of ``replicas`` updates, looped and stacked, for each learner, one torch thread; prints one
+    line each and returns the rows."""
+    rows = []
+    with torch_threads(1):
+        for name in learners:
+            row = time_learner(name, replicas, repeats)
+            rows.append(row)
+            print(f"{name}: {replicas} replicas, looped {row['looped_ms']:.1f} ms, stacked {row['stacked_ms']:.1f} ms "
+                  f"per iteration ({row['speedup']:.2f}x)", flush=True)
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--replicas", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--learners", nargs="+", choices=LEARNER_NAMES, default=list(LEARNER_NAMES))
+    args = parser.parse_args(argv)
+    time_stacked_updates(args.replicas, args.repeats, args.learners)
+
+
+if __name__ == "__main__":
+    main()
