@@ -11,6 +11,7 @@
     python runners/bench.py reproduce --baseline 4549d80  # ~15 min: runners/reproduce.sh full's wall-clock, estimated
     python runners/bench.py scenarios --agents 2 4 8 16   # ~3 min: env-steps/s at N agents, ours vs VMAS navigation
     python runners/bench.py multiagent         # ~12 min: IPPO training frames/s, ours vs TorchRL's VMAS example
+    python runners/bench.py groups             # ~25 min: 5 seeds as one process (replicas=5) vs one after another
 
 Sections: ``env`` (env-steps/s of both domains beside VMAS give_way), ``planning`` (µs per plan per world of the
 scripted planners beside scipy; with ``--baseline``, a checkout directory or revision, CPU ms per plan of both
@@ -27,6 +28,8 @@ optionally beside another revision: ``--baseline``, ``--processes``, ``--probe-i
 not run by default), ``multiagent`` (training frames/s of our IPPO self-play on the continuous sidewalk at 4096
 worlds and 1 and 2 threads beside TorchRL's MAPPO/IPPO example on VMAS ``navigation``, two agents, the same networks,
 batch, epochs and minibatches: ``--ma-steps``, ``--ma-iterations``, ``--ma-warmup``, ``--ma-learners``; not run by
+default), ``groups`` (the wall-clock of 5 seeds trained as one process, ``replicas=5``, beside the same runs one
+after another, TRPO continuous and DQN grid: ``--setups``, ``--replicas``, ``--iterations``, ``--full``; not run by
 default). Flags after the sections that are not the ones below go
 to the sections that take flags of their own (``learners``: ``--opponent``, ``--frames``, ``--seeds``,
 ``--setups``, ``--learners``, ``--noise``, ``--eval-episodes``; see ``python -m sidewalk.bench.learners -h``).
@@ -55,6 +58,7 @@ SECTIONS = {
     "reproduce": "sidewalk.bench.reproduce",
     "scenarios": "sidewalk.bench.scenarios",
     "multiagent": "sidewalk.bench.multiagent",
+    "groups": "sidewalk.bench.groups",
 }
 DEFAULT_SECTIONS = ("env", "planning", "views")
 

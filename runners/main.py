@@ -52,7 +52,12 @@ def main(cfg: DictConfig) -> float | None:
             check_partner_of(experiment)
             # One writer per folder, taken before the folder is read: a second process is refused here.
             held.enter_context(run_folder.writer_lock(run_dir))
-            run_folder.check(run_dir, config, experiment.resume)
+            if experiment.replicas > 1:
+                from sidewalk.group import check_group
+
+                check_group(run_dir, experiment, config)
+            else:
+                run_folder.check(run_dir, config, experiment.resume)
         except run_folder.FolderInUse as error:
             refuse(error, in_sweep, run_dir.with_name(f"{run_dir.name}.{ERROR_FILE}"))  # not its folder
             return None
@@ -83,6 +88,8 @@ def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | No
     from sidewalk.experiment import LearnerDiverged, RunInterrupted, Trial
 
     try:
+        if experiment.replicas > 1:
+            return train_group(experiment, run_dir, config, in_sweep)
         summary = Trial(experiment, run_dir, config).run()
     except RunInterrupted as stopped:
         print(f"\n{stopped}", file=sys.stderr)
@@ -107,6 +114,23 @@ def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | No
     if not in_sweep:  # a sweep's runs are reported together: runners/report.py <sweep folder>
         write_plots(run_dir)
     return summary.get("ego/success_rate", summary.get("team/success_rate"))
+
+
+def train_group(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | None:
+    """``replicas=R``: the R seeds trained in this process (``sidewalk.group``), each in its run folder; prints each
+    replica's headline and writes one report over them (outside a sweep). Errors propagate to ``train``."""
+    from sidewalk.group import GroupTrial, replica_dir
+
+    summaries = GroupTrial(experiment, run_dir, config).run()
+    print(f"\ngroup folder: {run_dir} ({len(summaries)} replicas)")
+    for summary in summaries:
+        headline = ", ".join(f"{key} {summary[key]:.3f}" for key in HEADLINE[:1] + ("team/success_rate",)
+                             if key in summary)
+        print(f"  {replica_dir(run_dir, summary['seed'])}: {headline}, wall_clock_s {summary['wall_clock_s']:.1f}")
+    if not in_sweep:
+        write_plots(run_dir)
+    successes = [summary.get("ego/success_rate", summary.get("team/success_rate")) for summary in summaries]
+    return sum(successes) / len(successes) if None not in successes else None
 
 
 def write_plots(run_dir: Path) -> None:

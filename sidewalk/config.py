@@ -71,6 +71,7 @@ class Experiment:
     torch_threads: int
     shield: bool = False  # the safety shield guards the learner's actions (training and evaluation)
     other_play: bool = False  # self-play partners act through a random mirror of the game (sidewalk.symmetry)
+    replicas: int = 1  # seeds seed .. seed+replicas-1 trained together in this process (sidewalk.group)
 
 
 def _field_names(schema: type) -> list[str]:
@@ -131,12 +132,14 @@ def validate(cfg: DictConfig) -> Experiment:
         torch_threads=cfg.torch_threads,
         shield=bool(cfg.shield),
         other_play=bool(cfg.other_play),
+        replicas=cfg.replicas,
     )
 
 
 def _check_run_settings(cfg: DictConfig) -> None:
     """The run's own numbers: seed, sizes, budgets, threads, what it keeps and where it runs."""
     check_int("seed", cfg.seed, 0)
+    check_int("replicas", cfg.replicas, 1)
     check_int("num_envs", cfg.num_envs, 1)
     check_int("iterations", cfg.iterations, 1)
     check_int("eval_every", cfg.eval_every, 0)

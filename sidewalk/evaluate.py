@@ -345,3 +345,36 @@ def evaluate(
     """Metrics of one episode in each of ``env``'s worlds under ``policy`` (see ``summarize``; ``deterministic``
     as in ``run_episodes``)."""
     return summarize(run_episodes(env, policy, seed=seed, deterministic=deterministic))
+
+
+def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:
+    """Outcomes of the episodes that ended inside one collected batch, and the safety cost the learner paid in it.
+
+    ``train/cost`` counts every step of the batch, finished episodes or not: the cost the learner's agents (the ego
+    in an ego view, every agent otherwise) paid while learning -- the numerator of Safety Gym's training cost rate.
+    """
+    cost = batch.get(("next", "world", "cost"))  # (..., N, 1)
+    learner_cost = cost.select(-2, ego) if ego is not None else cost
+    done = batch.get(("next", "done")).squeeze(-1)
+    episodes = int(done.sum())
+    metrics: dict[str, float] = {"train/episodes": float(episodes), "train/cost": float(learner_cost.sum())}
+    shielded = batch.get(("next", "world", "shield"), None)
+    if shielded is not None:  # shield=true: the fraction of the learner's steps whose action the shield replaced
+        learner_shielded = shielded.select(-2, ego) if ego is not None else shielded
+        metrics["train/shield_rate"] = float(learner_shielded.float().mean())
+    if episodes == 0:
+        return metrics
+    reached = batch.get(("next", "world", "info", "reached_goal")).squeeze(-1)[done]  # (episodes, N)
+    collided = (
+        batch.get(("next", "world", "info", "collided_agent")) | batch.get(("next", "world", "info", "collided_wall"))
+    ).squeeze(-1)[done]
+    episode_reward = batch.get(("next", "episode_reward"), None)
+    if episode_reward is None:  # self-play: every agent's own return, averaged over the agents
+        episode_reward = batch.get(("next", "agents", "episode_reward")).mean(-2)
+    metrics["train/return"] = float(episode_reward.squeeze(-1)[done].mean())
+    metrics["train/success_rate"] = float(reached.float().mean())
+    metrics["train/team_success_rate"] = float(reached.all(-1).float().mean())
+    if ego is not None:
+        metrics["train/ego_success_rate"] = float(reached[:, ego].float().mean())
+        metrics["train/ego_collision_rate"] = float(collided[:, ego].float().mean())
+    return metrics

@@ -46,7 +46,7 @@ from sidewalk.algos import ALGORITHMS
 from sidewalk.algos.base import Algorithm
 from sidewalk.config import Experiment
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
-from sidewalk.evaluate import evaluate
+from sidewalk.evaluate import evaluate, train_metrics
 from sidewalk.loggers import make_logger
 from sidewalk.opponents.base import make_opponent
 from sidewalk.opponents.policy import policy_description
@@ -95,39 +95,6 @@ def collector_frames_per_batch(experiment: Experiment) -> int:
     """Frames of one iteration: the learner's ``frames_per_batch`` rounded up to whole steps of every world,
     as TorchRL's collector rounds it."""
     return math.ceil(experiment.algo.frames_per_batch / experiment.num_envs) * experiment.num_envs
-
-
-def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:
-    """Outcomes of the episodes that ended inside one collected batch, and the safety cost the learner paid in it.
-
-    ``train/cost`` counts every step of the batch, finished episodes or not: the cost the learner's agents (the ego
-    in an ego view, every agent otherwise) paid while learning -- the numerator of Safety Gym's training cost rate.
-    """
-    cost = batch.get(("next", "world", "cost"))  # (..., N, 1)
-    learner_cost = cost.select(-2, ego) if ego is not None else cost
-    done = batch.get(("next", "done")).squeeze(-1)
-    episodes = int(done.sum())
-    metrics: dict[str, float] = {"train/episodes": float(episodes), "train/cost": float(learner_cost.sum())}
-    shielded = batch.get(("next", "world", "shield"), None)
-    if shielded is not None:  # shield=true: the fraction of the learner's steps whose action the shield replaced
-        learner_shielded = shielded.select(-2, ego) if ego is not None else shielded
-        metrics["train/shield_rate"] = float(learner_shielded.float().mean())
-    if episodes == 0:
-        return metrics
-    reached = batch.get(("next", "world", "info", "reached_goal")).squeeze(-1)[done]  # (episodes, N)
-    collided = (
-        batch.get(("next", "world", "info", "collided_agent")) | batch.get(("next", "world", "info", "collided_wall"))
-    ).squeeze(-1)[done]
-    episode_reward = batch.get(("next", "episode_reward"), None)
-    if episode_reward is None:  # self-play: every agent's own return, averaged over the agents
-        episode_reward = batch.get(("next", "agents", "episode_reward")).mean(-2)
-    metrics["train/return"] = float(episode_reward.squeeze(-1)[done].mean())
-    metrics["train/success_rate"] = float(reached.float().mean())
-    metrics["train/team_success_rate"] = float(reached.all(-1).float().mean())
-    if ego is not None:
-        metrics["train/ego_success_rate"] = float(reached[:, ego].float().mean())
-        metrics["train/ego_collision_rate"] = float(collided[:, ego].float().mean())
-    return metrics
 
 
 # ---- the trial --------------------------------------------------------------------------------------------------
@@ -256,11 +223,20 @@ class Trial:
     ) -> tuple[dict[str, float], bool]:
         """One update on a collected batch, its metrics row (with an evaluation when one is due), logged; returns
         the row and whether ``on_evaluation`` asked to stop."""
+        logs = parts.algo.update(batch, parts.replay_buffer)
+        parts.collector.update_policy_weights_()
+        return self._record(parts, state, batch, logs, on_evaluation)
+
+    def _record(
+        self, parts: Parts, state: Progress, batch: TensorDictBase, update_logs: dict[str, float],
+        on_evaluation: Callable[[dict[str, float], float, float], bool] | None = None,
+    ) -> tuple[dict[str, float], bool]:
+        """The metrics row of an iteration whose update returned ``update_logs`` (checked finite first), with an
+        evaluation when one is due, logged; returns the row and whether ``on_evaluation`` asked to stop."""
         exp, algo = self.experiment, parts.algo
-        logs = {f"train/{key}": value for key, value in algo.update(batch, parts.replay_buffer).items()}
+        logs = {f"train/{key}": value for key, value in update_logs.items()}
         self._check_finite(algo, logs, state)
         state.iteration += 1
-        parts.collector.update_policy_weights_()
         row: dict[str, float] = {"iteration": state.iteration, "frames": state.iteration * parts.frames_per_batch}
         row.update(train_metrics(batch, parts.ego))
         previous_cost = state.rows[-1].get("train/cumulative_cost", 0.0) if state.rows else 0.0
@@ -332,11 +308,20 @@ class Trial:
 
     def _finish(self, parts: Parts, state: Progress, revision: str) -> dict[str, Any]:
         """The last checkpoint (``keep_checkpoint=all``), ``policy.pt`` and ``summary.json`` from the final evaluation."""
-        exp, iteration = self.experiment, state.iteration
+        exp = self.experiment
         if exp.keep_checkpoint == "all":
             self._checkpoint(parts, state, state.elapsed())
-        save_policy(self.run_dir, self._policy_state(parts.algo))
         parts.collector.shutdown()
+        summary = self._conclude(parts, state, revision)
+        if exp.keep_checkpoint == "final":  # the replay buffer and optimiser state are gigabytes over a sweep
+            drop_training_state(self.run_dir)
+        self._history("finished", iteration=state.iteration)
+        return summary
+
+    def _conclude(self, parts: Parts, state: Progress, revision: str) -> dict[str, Any]:
+        """Write ``policy.pt`` and ``summary.json`` (the last evaluation's metrics, or a final one); return the summary."""
+        exp, iteration = self.experiment, state.iteration
+        save_policy(self.run_dir, self._policy_state(parts.algo))
         rows = state.rows
         last_eval = {key[len("eval/"):]: value for key, value in rows[-1].items() if key.startswith("eval/")}
         final = last_eval or evaluate(parts.eval_env, parts.algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
@@ -357,9 +342,6 @@ class Trial:
         # Strict JSON: an undefined metric (no agent arrived, so no path efficiency) is null, not NaN.
         strict = {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in summary.items()}
         atomic_write(self.run_dir / SUMMARY, lambda tmp: tmp.write_text(json.dumps(strict, indent=2, default=str)))
-        if exp.keep_checkpoint == "final":  # the replay buffer and optimiser state are gigabytes over a sweep
-            drop_training_state(self.run_dir)
-        self._history("finished", iteration=iteration)
         return summary
 
     def _policy_state(self, algo: Algorithm) -> dict[str, Any]:

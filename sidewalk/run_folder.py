@@ -41,6 +41,8 @@ POLICY = "policy.pt"
 METRICS = "metrics.csv"
 SUMMARY = "summary.json"
 LOCK = ".writer.lock"
+# In a folder of replicas trained together (replicas=R, sidewalk.group): the group's own config, history and checkpoint.
+GROUP_DIR = ".group"
 # Keys a resume may change: the flag itself and what is kept after the run, neither of which changes a number.
 RESUME_MAY_CHANGE = ("resume", "keep_checkpoint")
 

@@ -84,6 +84,7 @@ class ExperimentSchema:
     reward: Any = MISSING
     logger: Any = MISSING
     seed: int = 0
+    replicas: int = 1
     noise: float = 0.0
     device: str = "cpu"
     num_envs: int = 32

@@ -597,7 +597,8 @@ def test_presets_compose_into_valid_sweeps(preset, scale):
             for v in values.split(",")
         ]
     params = dict(cfg.hydra.sweeper.params)
-    assert params == {**sweep, "seed": "0,1,2" if scale == "full" else "0,1"}
+    assert params == sweep  # the seeds are replicas of each job's process, not jobs of the sweep
+    assert (cfg.seed, cfg.replicas) == (0, 3 if scale == "full" else 2)
     assert (cfg.env.domain, cfg.algo.name) == (domain, algo)
     assert cfg.iterations == (iterations if scale == "full" else 20)
     assert cfg.hydra.runtime.choices.experiment == preset

@@ -37,6 +37,7 @@ def test_the_estimate_prices_every_run_of_reproduce_sh():
     names = presets()
     assert names == ["fig5_discrete", "fig5_continuous", "fig6_discrete", "fig6_continuous", "fig8"]
     fig5 = sweep("fig5_discrete")
-    assert len(fig5["runs"]) == 9 and ["opponent=centralized", "seed=2"] in fig5["runs"]
+    assert fig5["runs"] == [["opponent=random"], ["opponent=dijkstra"], ["opponent=centralized"]]
+    assert fig5["replicas"] == 3  # each job trains seeds 0, 1, 2 in one process
     assert (fig5["iterations"], fig5["eval_every"], fig5["checkpoint_every"]) == (5000, 50, 50)
     assert sweep("fig6_continuous")["iterations"] == 5000  # the paper's continuous budget, not the reference's 500

@@ -6,7 +6,8 @@ budgets, continuous 5000 iterations included) estimated from per-iteration costs
     python runners/bench.py reproduce --baseline 4549d80            # ~15 min: also the reference runs' revision
 
 Every distinct run of the presets that ``runners/reproduce.sh`` sweeps (the preset's sweep parameters, seeds
-aside: a seed changes what is learned, not what an iteration costs) is probed once: ``runners/main.py`` with the
+aside: a seed changes what is learned, not what an iteration costs; a job that trains its seeds as one group,
+``replicas=R``, is probed as that group) is probed once: ``runners/main.py`` with the
 run's overrides for ``--probe-iterations`` iterations, an evaluation and a checkpoint every ``probe_period``, and
 its ``metrics.csv`` times per iteration read apart into
 
@@ -77,7 +78,7 @@ def sweep(preset: str) -> dict[str, Any]:
     names = list(params)
     runs = [[f"{name}={value}" for name, value in zip(names, values)] for values in itertools.product(*params.values())]
     return {"preset": preset, "runs": runs, "iterations": int(cfg.iterations), "eval_every": int(cfg.eval_every),
-            "checkpoint_every": int(cfg.checkpoint_every)}
+            "checkpoint_every": int(cfg.checkpoint_every), "replicas": int(cfg.replicas)}
 
 
 def _run_key(preset: str, overrides: Sequence[str]) -> tuple[str, ...]:
@@ -96,7 +97,9 @@ def _probe(tree: Path, overrides: list[str], workdir: Path, iterations: int, per
     wall = time.perf_counter() - started
     if result.returncode != 0:
         raise RuntimeError(f"{shlex.join(command)} failed in {tree}:\n{result.stderr[-3000:]}")
-    return costs_from_metrics(pd.read_csv(run_dir / "metrics.csv"), wall, period)
+    # A group of replicas (replicas=R) times all of them in each replica's metrics.csv: read the first one's.
+    metrics = run_dir / "metrics.csv" if (run_dir / "metrics.csv").exists() else min(run_dir.glob("seed*/metrics.csv"))
+    return costs_from_metrics(pd.read_csv(metrics), wall, period)
 
 
 def costs_from_metrics(rows: pd.DataFrame, wall_s: float, period: int) -> dict[str, float]:

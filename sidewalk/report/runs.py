@@ -14,7 +14,7 @@ from typing import Any
 import pandas as pd
 from omegaconf import OmegaConf
 
-from sidewalk.run_folder import CHECKPOINT, CONFIG, METRICS, POLICY, SUMMARY, policy_file  # noqa: F401
+from sidewalk.run_folder import CHECKPOINT, CONFIG, GROUP_DIR, METRICS, POLICY, SUMMARY, policy_file  # noqa: F401
 
 ERROR = "error.txt"
 # A folder holding any of these is a run folder, complete or not (".hydra" alone: a job killed while starting).
@@ -66,7 +66,9 @@ def find_run_folders(paths: Iterable[str | Path]) -> list[Path]:
         if not path.is_dir():
             raise NotADirectoryError(f"{path} is not a folder; give run folders or sweep folders")
         for root, dirs, files in os.walk(path):
-            if any(marker in files or marker in dirs for marker in RUN_MARKERS):
+            if GROUP_DIR in dirs:  # replicas trained together: the run folders are its subfolders
+                dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            elif any(marker in files or marker in dirs for marker in RUN_MARKERS):
                 found.add(Path(root))
                 dirs[:] = []
             else:

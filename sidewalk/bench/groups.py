@@ -1,0 +1,89 @@
+"""Several seeds in one process, priced: the wall-clock of R seeds trained as one group (``replicas=R``) beside the
+same R runs one after another, each ``runners/main.py`` end to end, on this machine, one torch thread.
+
+    python runners/bench.py groups                                   # ~25 min: TRPO continuous and DQN grid, 5 seeds
+    python runners/bench.py groups --setups trpo --iterations 40     # one setup, a shorter budget
+    python runners/bench.py groups --full                            # the default runs' whole budgets (hours)
+
+Each setup is a default run (``env=continuous`` with its TRPO and PRM agent; the grid's DQN against Dijkstra) at
+``--iterations`` iterations (the default runs' own budgets with ``--full``), evaluated at the end. Printed per setup:
+the group's and the one-after-another wall-clock and their ratio, and each replica's final success beside its lone
+run's (the group's replicas update in one vectorised pass where the learner has one, which rounds differently from
+a lone update, so the two may part; ``within spread`` says whether each replica's success lies within the lone
+runs' range).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from sidewalk.bench.common import REPO_ROOT, format_table
+
+SETUPS = {"trpo": ["env=continuous"], "dqn": []}
+SUCCESS = "ego/success_rate"
+
+
+def _main_py(overrides: list[str], run_dir: Path) -> float:
+    """Run ``runners/main.py`` to the end; its wall-clock in seconds."""
+    command = [sys.executable, "runners/main.py", *overrides, "logger=none", f"hydra.run.dir={run_dir}"]
+    started = time.perf_counter()
+    result = subprocess.run(command, cwd=REPO_ROOT, capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed:\n{result.stderr[-3000:]}")
+    return time.perf_counter() - started
+
+
+def _success(run_dir: Path) -> float:
+    return float(json.loads((run_dir / "summary.json").read_text())[SUCCESS])
+
+
+def time_setup(name: str, replicas: int, iterations: int | None, tmp: Path) -> dict[str, Any]:
+    """One setup: the group of ``replicas`` seeds, then the same seeds one after another."""
+    budget = [] if iterations is None else [f"iterations={iterations}", f"eval_every={iterations}"]
+    overrides = [*SETUPS[name], *budget]
+    print(f"groups: {name}, {replicas} seeds as one group ...", file=sys.stderr, flush=True)
+    group_s = _main_py([*overrides, f"replicas={replicas}"], tmp / f"{name}-group")
+    lone_s, lone_success = 0.0, []
+    for seed in range(replicas):
+        print(f"groups: {name}, seed {seed} alone ...", file=sys.stderr, flush=True)
+        lone_s += _main_py([*overrides, f"seed={seed}"], tmp / f"{name}-seed{seed}")
+        lone_success.append(_success(tmp / f"{name}-seed{seed}"))
+    group_success = [_success(tmp / f"{name}-group" / f"seed{seed}") for seed in range(replicas)]
+    low, high = min(lone_success), max(lone_success)
+    return {"setup": name, "seeds": replicas, "iterations": iterations or "default",
+            "group s": group_s, "one after another s": lone_s, "group ÷ one after another": group_s / lone_s,
+            "group success": " ".join(f"{value:.2f}" for value in group_success),
+            "lone success": " ".join(f"{value:.2f}" for value in lone_success),
+            "within spread": all(low <= value <= high for value in group_success)}
+
+
+def run(setups: Sequence[str] = tuple(SETUPS), replicas: int = 5, iterations: int | None = 40,
+        full: bool = False) -> list[dict[str, Any]]:
+    with tempfile.TemporaryDirectory(prefix="sidewalk-groups-") as tmp:
+        return [time_setup(name, replicas, None if full else iterations, Path(tmp)) for name in setups]
+
+
+def format_rows(rows: list[dict[str, Any]]) -> str:
+    return format_table(rows)
+
+
+def parse_options(argv: Sequence[str]) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(prog="runners/bench.py groups", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--setups", nargs="+", default=list(SETUPS), choices=list(SETUPS))
+    parser.add_argument("--replicas", type=int, default=5, help="seeds in the group (default 5)")
+    parser.add_argument("--iterations", type=int, default=40, help="iterations of every run (default 40)")
+    parser.add_argument("--full", action="store_true", help="the default runs' own budgets (hours)")
+    args = parser.parse_args(list(argv))
+    if args.replicas < 2:
+        parser.error(f"--replicas={args.replicas} must be ≥ 2")
+    if args.iterations < 1:
+        parser.error(f"--iterations={args.iterations} must be ≥ 1")
+    return {"setups": args.setups, "replicas": args.replicas, "iterations": args.iterations, "full": args.full}

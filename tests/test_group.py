@@ -1,0 +1,138 @@
+"""Several seeds in one process (``replicas=R``, ``sidewalk.group``): a replica is the run it would be alone, its
+folder is an ordinary run folder, and a killed or pre-empted group resumes to the same numbers."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from hydra import compose, initialize_config_dir
+
+from sidewalk.config import register_schemas, validate
+from sidewalk.experiment import Trial
+from sidewalk.group import GroupTrial, replica_dir
+from sidewalk.report import Settings, write_report
+from sidewalk.report.runs import find_run_folders, load_run
+from sidewalk.run_folder import GROUP_DIR, read_torch_file
+
+ROOT = Path(__file__).resolve().parents[1]
+WALL_CLOCK = ["time_s", "frames_per_s"]
+register_schemas()
+
+SHORT = ["logger=none", "iterations=4", "eval_every=2", "eval_episodes=8", "checkpoint_every=2"]
+DQN_GRID = ["num_envs=4", "algo.frames_per_batch=16", "algo.batch_size=16", "algo.buffer_size=2000",
+            "algo.learning_starts=0", "noise=0.1"]
+TRPO_CONTINUOUS = ["env=continuous", "opponent=prm", "num_envs=8", "algo.frames_per_batch=64",
+                   "algo.vf_batch_size=16", "noise=0.5"]
+SETUPS = {
+    "dqn-grid": DQN_GRID,
+    "trpo-continuous": TRPO_CONTINUOUS,
+    "ppo-continuous-random": ["env=continuous", "opponent=random", "algo=ppo", "num_envs=8",
+                              "algo.frames_per_batch=64", "algo.minibatch_size=32", "noise=0.5"],
+    "centralized-dqn": ["opponent=centralized", *DQN_GRID],
+    "iql-selfplay": ["+experiment=selfplay_discrete", "num_envs=4", "algo.frames_per_batch=16",
+                     "algo.batch_size=16", "algo.learning_starts=0"],
+}
+
+
+def experiment(*overrides: str):
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        return validate(compose(config_name="config", overrides=[*SHORT, *overrides]))
+
+
+def metrics(run_dir: Path) -> pd.DataFrame:
+    return pd.read_csv(run_dir / "metrics.csv").drop(columns=WALL_CLOCK)
+
+
+@pytest.mark.parametrize("setup", ["dqn-grid", "trpo-continuous"])
+def test_a_group_of_one_is_a_lone_run(tmp_path, setup):
+    exp = experiment(*SETUPS[setup], "seed=5")
+    Trial(exp, tmp_path / "lone").run(progress=False)
+    GroupTrial(exp, tmp_path / "group").run(progress=False)
+    pd.testing.assert_frame_equal(metrics(replica_dir(tmp_path / "group", 5)), metrics(tmp_path / "lone"))
+
+
+@pytest.mark.parametrize("setup", list(SETUPS))
+def test_a_replica_equals_a_group_of_it_alone(tmp_path, setup):
+    """Replica seed 4 of the group of seeds 3, 4, 5 against the group of seed 4 alone: every metric equal."""
+    GroupTrial(experiment(*SETUPS[setup], "seed=3", "replicas=3"), tmp_path / "three").run(progress=False)
+    GroupTrial(experiment(*SETUPS[setup], "seed=4"), tmp_path / "one").run(progress=False)
+    alone = metrics(replica_dir(tmp_path / "one", 4))
+    pd.testing.assert_frame_equal(metrics(replica_dir(tmp_path / "three", 4)), alone)
+    assert not metrics(replica_dir(tmp_path / "three", 3)).equals(alone)  # the replicas' streams differ
+
+
+@pytest.mark.parametrize("setup", ["trpo-continuous", "ppo-continuous-random"])
+def test_the_vectorised_update_equals_one_replica_at_a_time(tmp_path, setup):
+    exp = experiment(*SETUPS[setup], "seed=3", "replicas=3")
+    GroupTrial(exp, tmp_path / "stacked").run(progress=False)
+    GroupTrial(exp, tmp_path / "looped", vectorize=False).run(progress=False)
+    for seed in (3, 4, 5):
+        pd.testing.assert_frame_equal(metrics(replica_dir(tmp_path / "stacked", seed)),
+                                      metrics(replica_dir(tmp_path / "looped", seed)), check_exact=True)
+
+
+def main_py(*overrides: str, timeout: float = 600, check: bool = True) -> subprocess.CompletedProcess:
+    result = subprocess.run([sys.executable, "runners/main.py", *overrides], cwd=ROOT, capture_output=True,
+                            text=True, timeout=timeout)
+    if check and result.returncode != 0:
+        raise AssertionError(f"main.py failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
+    return result
+
+
+def test_replica_folders_are_ordinary_run_folders(tmp_path):
+    group, lone = tmp_path / "group", tmp_path / "lone"
+    main_py(*SHORT, *DQN_GRID, "seed=1", "replicas=2", f"hydra.run.dir={group}")
+    main_py(*SHORT, *DQN_GRID, "seed=2", f"hydra.run.dir={lone}")
+    assert (group / GROUP_DIR / "config.yaml").exists() and not (group / GROUP_DIR / "checkpoint.pt").exists()
+    assert find_run_folders([group]) == [replica_dir(group, 1), replica_dir(group, 2)]
+    replica, alone = load_run(replica_dir(group, 2)), load_run(lone)
+    assert replica.config == alone.config  # the replica's config.yaml is the lone run's, seed 2 and all
+    pd.testing.assert_frame_equal(replica.metrics.drop(columns=WALL_CLOCK), alone.metrics.drop(columns=WALL_CLOCK))
+    assert {p.name for p in replica_dir(group, 2).iterdir()} >= {"config.yaml", "history.jsonl", "metrics.csv",
+                                                                 "summary.json", "policy.pt"}
+    summary = json.loads((replica_dir(group, 2) / "summary.json").read_text())
+    assert summary["seed"] == 2 and summary["iterations"] == 4
+    assert (group / "report" / "report.md").exists()  # the group ended with one report over its replicas
+    result = write_report([tmp_path], tmp_path / "report", Settings(n_resamples=200))
+    assert not result.skipped
+    # To the report, the lone run of seed 2 is the same condition as the group and the same run as its replica 2.
+    (condition,) = result.conditions
+    assert sorted(run.seed for run in condition.runs) == [1, 2]
+    assert [seed for seed, _, _ in condition.duplicates] == [2]
+
+
+@pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGTERM], ids=["killed", "preempted"])
+def test_a_stopped_group_resumes_to_the_same_metrics(tmp_path, stop):
+    overrides = [*SHORT, *TRPO_CONTINUOUS, "iterations=24", "checkpoint_every=3", "eval_every=6", "replicas=2"]
+    main_py(*overrides, f"hydra.run.dir={tmp_path / 'whole'}")
+    stopped = tmp_path / "stopped"
+    process = subprocess.Popen([sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={stopped}"],
+                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    while not (stopped / GROUP_DIR / "checkpoint.pt").exists() and process.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    time.sleep(0.5)  # into the next iterations, past the checkpoint
+    os.kill(process.pid, stop)
+    returncode = process.wait()
+    assert not (replica_dir(stopped, 0) / "summary.json").exists(), "the group finished before it could be stopped"
+    if stop == signal.SIGTERM:
+        assert returncode == 128 + signal.SIGTERM
+        at = read_torch_file(stopped / GROUP_DIR / "checkpoint.pt")["iteration"]
+        assert len(pd.read_csv(replica_dir(stopped, 1) / "metrics.csv")) == at
+    main_py(*overrides, f"hydra.run.dir={stopped}", "resume=true")
+    for seed in (0, 1):
+        pd.testing.assert_frame_equal(metrics(replica_dir(stopped, seed)), metrics(replica_dir(tmp_path / "whole", seed)))
+
+
+def test_bad_replicas_is_one_error_line(tmp_path):
+    result = main_py(*SHORT, "replicas=0", f"hydra.run.dir={tmp_path / 'run'}", check=False)
+    assert result.returncode == 2 and result.stderr.strip().startswith("error: replicas=0")
+    assert len(result.stderr.strip().splitlines()) == 1 and not (tmp_path / "run" / "seed0").exists()
