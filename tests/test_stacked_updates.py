@@ -1,12 +1,11 @@
 """One vectorised update for R replicas (sidewalk/algos/stacked.py) against the loop it replaces:
 ``with streams.use(r): algo.update(batch)`` for each replica r, on learners built twice from the same seeds.
 
-Tolerances: linear layers run as batched matmuls that round exactly as ``F.linear`` does (width-1 heads and the
-image encoder run per replica), Adam on the stacks does each replica's arithmetic, and the scalars a replica's
-decisions hinge on are computed per replica, so TRPO on vectors and PPO on vectors and images are compared with
-``torch.equal``: bit-identical parameters, buffers, Adam state, logs and random streams. TRPO on images differs by
-an ulp or so (measured ≤ 2e-8 on parameters after 3 updates: its Fisher-vector products through the convs
-accumulate in another order), and is compared to 1e-6.
+No tolerances: linear layers run as batched matmuls where those round exactly as ``F.linear`` does (else per
+replica), the autograd graph sums gradients in the loop's order, Adam on the stacks does each replica's arithmetic,
+and the scalars a replica's decisions hinge on are computed per replica, so TRPO and PPO on vectors and images are
+compared with ``torch.equal``: bit-identical parameters, buffers, Adam state, logs and random streams, at the default
+sizes and at small ones (a Fisher-vector product on 13 rows, minibatches of a few rows, batches of odd lengths).
 """
 
 from __future__ import annotations
@@ -19,10 +18,13 @@ from torchrl.collectors import Collector
 from sidewalk.algos.base import Algorithm
 from sidewalk.algos.ppo import PPO, PPOConfig
 from sidewalk.algos.stacked import (
+    NAIVE_BMM_BELOW,
     StackedAdam,
     StackedNetwork,
     StackedPPO,
     StackedTRPO,
+    _runs_per_replica,
+    _stacked_linear,
     batched_conjugate_gradient,
     clip_grad_norms_,
     vectorized_update,
@@ -46,12 +48,13 @@ SETTINGS = {
 UPDATES = 3
 
 
-def replicas(learner: str, domain: str, seeds, **config) -> tuple[list[Algorithm], list]:
+def replicas(learner: str, domain: str, seeds, *, num_envs: int = 16, noise: float = 0.0, **config
+             ) -> tuple[list[Algorithm], list]:
     """One learner per seed (its own world and initial networks) and its envs; the same seeds give the same set."""
     cls, config_cls = LEARNERS[learner]
     algos, envs = [], []
     for seed in seeds:
-        env = make_view("ego", CORES[domain](num_envs=16, seed=seed), opponent="random")
+        env = make_view("ego", CORES[domain](num_envs=num_envs, seed=seed, noise=noise), opponent="random")
         torch.manual_seed(100 + seed)
         algos.append(cls(config_cls(**config), env))
         envs.append(env)
@@ -108,38 +111,64 @@ def run_stacked(algos, batches, streams) -> list[list[dict[str, float]]]:
     return [updater.update([batch.clone() for batch in update], streams) for update in batches]
 
 
-def loop_and_stacked(learner: str, domain: str, seeds=(0, 1, 2), **config):
-    """The loop and the stacked update on two identical sets of learners and the same batches."""
+def loop_and_stacked(learner: str, domain: str, seeds=(0, 1, 2), updates: int = UPDATES, **config):
+    """The loop and the stacked update on two identical sets of learners and the same batches (``config``: the
+    learner's settings over ``SETTINGS``, and the envs' ``num_envs`` and ``noise``)."""
     config = {**SETTINGS[learner, domain], **config}
     (looped, envs), (stacked, _) = replicas(learner, domain, seeds, **config), replicas(learner, domain, seeds, **config)
-    batches = collect_batches(looped, envs)
+    batches = collect_batches(looped, envs, updates)
     loop_streams, stacked_streams = ReplicaStreams(seeds), ReplicaStreams(seeds)
     loop_logs = run_loop(looped, batches, loop_streams)
     stacked_logs = run_stacked(stacked, batches, stacked_streams)
     return looped, stacked, loop_logs, stacked_logs, loop_streams, stacked_streams
 
 
-@pytest.mark.parametrize("learner, domain, exact", [
-    ("trpo", "continuous", True), ("ppo", "continuous", True), ("ppo", "discrete", True), ("trpo", "discrete", False),
-])
-def test_stacked_update_is_the_loop(learner, domain, exact):
-    looped, stacked, loop_logs, stacked_logs, loop_streams, stacked_streams = loop_and_stacked(learner, domain)
+def assert_the_loop(learner: str, domain: str, updates: int = UPDATES, **config) -> None:
+    """The stacked update is bit for bit the loop: every learner's tensors, every log, every stream's draws."""
+    looped, stacked, loop_logs, stacked_logs, loop_streams, stacked_streams = loop_and_stacked(
+        learner, domain, updates=updates, **config)
     for loop_algo, stacked_algo in zip(looped, stacked):
-        assert stacked_algo.frames_seen == loop_algo.frames_seen == UPDATES * loop_algo.config.frames_per_batch
+        assert stacked_algo.frames_seen == loop_algo.frames_seen == updates * loop_algo.config.frames_per_batch
         assert state(stacked_algo).keys() == state(loop_algo).keys()  # Adam state created for every parameter
-        if exact:
-            assert identical(stacked_algo, loop_algo)
-        else:
-            assert max_difference(stacked_algo, loop_algo) < 1e-6
+        assert identical(stacked_algo, loop_algo), max_difference(stacked_algo, loop_algo)
     for loop_row, stacked_row in zip(loop_logs, stacked_logs):
         for loop_replica, stacked_replica in zip(loop_row, stacked_row):
             assert list(stacked_replica) == list(loop_replica)
-            if exact:
-                assert stacked_replica == loop_replica
-            else:
-                assert stacked_replica == pytest.approx(loop_replica, rel=1e-4, abs=1e-6)
+            assert stacked_replica == loop_replica
     for loop_state, stacked_state in zip(loop_streams.state_dict(), stacked_streams.state_dict()):
         assert torch.equal(loop_state["torch"], stacked_state["torch"])  # the same draws from each stream
+
+
+@pytest.mark.parametrize("learner, domain", [
+    ("trpo", "continuous"), ("ppo", "continuous"), ("ppo", "discrete"), ("trpo", "discrete"),
+])
+def test_stacked_update_is_the_loop(learner, domain):
+    assert_the_loop(learner, domain)
+
+
+# Small sizes, where a matmul or an elementwise kernel can take another path than at the defaults: 8 noisy worlds ×
+# 8 steps (TRPO's Fisher-vector products on 64 / 5 → 13 rows, value minibatches of 16; PPO's minibatches of 32), then
+# odd lengths (a Fisher-vector product on 8 rows, value minibatches of 4 and a last one of 3, PPO minibatches of 5
+# and a last one of 4: a replica's elements short of whole vector steps, matmuls under ATen's naive threshold and
+# tiny layers), with the sampled entropy bonus; 4 updates, the statistics and Adam moving between them.
+SMALL = {
+    "trpo-64": ("trpo", "continuous", {"num_envs": 8, "noise": 0.5, "frames_per_batch": 64, "vf_batch_size": 16}),
+    "ppo-64": ("ppo", "continuous", {"num_envs": 8, "noise": 0.5, "frames_per_batch": 64, "minibatch_size": 32}),
+    "trpo-odd": ("trpo", "continuous", {"num_envs": 3, "noise": 0.5, "frames_per_batch": 15, "vf_batch_size": 4,
+                                        "fvp_subsample": 2, "policy_hidden": [7, 5], "value_hidden": [3]}),
+    "ppo-odd": ("ppo", "continuous", {"num_envs": 1, "noise": 0.5, "frames_per_batch": 9, "minibatch_size": 5,
+                                      "epochs": 2, "entropy_coef": 0.01}),
+    "ppo-odd-images": ("ppo", "discrete", {"num_envs": 2, "frames_per_batch": 10, "minibatch_size": 7, "epochs": 2,
+                                           "entropy_coef": 0.01}),
+    "trpo-odd-images": ("trpo", "discrete", {"num_envs": 2, "frames_per_batch": 14, "vf_batch_size": 5,
+                                             "fvp_subsample": 2}),
+}
+
+
+@pytest.mark.parametrize("case", list(SMALL))
+def test_stacked_update_is_the_loop_at_small_sizes(case):
+    learner, domain, config = SMALL[case]
+    assert_the_loop(learner, domain, updates=4, **config)
 
 
 @pytest.mark.parametrize("config", [{"max_kl": 1.0, "line_search_steps": 3}, {"max_kl": 5.0, "line_search_steps": 1}])
@@ -259,3 +288,55 @@ def test_stacked_adam_and_clipping_are_each_replicas_own():
             assert torch.equal(optimizer.state[param]["exp_avg"], adam.exp_avg[index][replica])
             assert torch.equal(optimizer.state[param]["exp_avg_sq"], adam.exp_avg_sq[index][replica])
             assert float(optimizer.state[param]["step"]) == adam.steps[replica][index] == (3, 1)[replica]
+
+
+def test_stacked_linear_is_f_linear_for_any_shape():
+    """The batched-or-per-replica choice (``_runs_per_replica``) against ``F.linear`` per replica, forward and
+    backward, on random shapes from tiny (ATen's naive batched loop, widths of 1) to past its threshold."""
+    generator = torch.Generator().manual_seed(0)
+
+    def draw(*shape):
+        return torch.randn(*shape, generator=generator)
+
+    shapes = [(1, 1, 1), (1, 16, 64), (5, 1, 64), (13, 64, 1), (13, 32, 2), (4, 32, 2), (13, 16, 32), (7, 3, 5)]
+    shapes += [tuple(int(size) for size in torch.randint(1, 70, (3,), generator=generator)) for _ in range(40)]
+    assert any(not _runs_per_replica(torch.empty(1, out, inp), rows) for rows, inp, out in shapes)
+    assert any(rows * inp * out < NAIVE_BMM_BELOW for rows, inp, out in shapes)
+    for rows, inp, out in shapes:
+        for with_bias in (True, False):
+            weight, x = draw(3, out, inp).requires_grad_(), draw(3, rows, inp).requires_grad_()
+            bias = draw(3, out).requires_grad_() if with_bias else None
+            y = _stacked_linear(weight, bias, x)
+            upstream = draw(*y.shape)
+            leaves = [weight, x] + ([bias] if with_bias else [])
+            grads = torch.autograd.grad(y, leaves, upstream)
+            for replica in range(3):
+                own = [leaf[replica].detach().clone().requires_grad_() for leaf in leaves]
+                expected = torch.nn.functional.linear(own[1], own[0], own[2] if with_bias else None)
+                assert torch.equal(y[replica], expected), (rows, inp, out)
+                expected_grads = torch.autograd.grad(expected, own, upstream[replica])
+                for grad, expected_grad in zip(grads, expected_grads):
+                    assert torch.equal(grad[replica], expected_grad), (rows, inp, out)
+
+
+@pytest.mark.parametrize("rows", [3, 13, 64])
+def test_stacked_fisher_vector_products_are_each_replicas_own(rows):
+    """A Hessian-vector product (a double backward, as TRPO's Fisher-vector products) through a stacked tanh MLP
+    equals each replica's own: batched and per-replica layers alike hand each tanh output its gradients in the
+    loop's order."""
+    torch.manual_seed(0)
+    nets = [torch.nn.Sequential(torch.nn.Linear(16, 32), torch.nn.Tanh(), torch.nn.Linear(32, 32), torch.nn.Tanh(),
+                                torch.nn.Linear(32, 2)) for _ in range(3)]
+    stacked = StackedNetwork(nets)
+    params = {name: tensor.requires_grad_(True) for name, tensor in stacked.params.items()}
+    x, target = torch.randn(3, rows, 16), torch.randn(3, rows, 2)
+    vector = torch.randn(3, sum(param.numel() for param in nets[0].parameters()))
+    loss = (stacked(x, params) - target).square().sum()
+    first = stacked.flatten(torch.autograd.grad(loss, list(params.values()), create_graph=True))
+    product = stacked.flatten(torch.autograd.grad((first * vector).sum(), list(params.values())))
+    for replica, net in enumerate(nets):
+        own = list(net.parameters())
+        own_first = torch.autograd.grad((net(x[replica]) - target[replica]).square().sum(), own, create_graph=True)
+        own_first = torch.cat([grad.reshape(-1) for grad in own_first])
+        expected = torch.autograd.grad(own_first @ vector[replica], own)
+        assert torch.equal(product[replica], torch.cat([grad.reshape(-1) for grad in expected]))

@@ -9,14 +9,19 @@ value-fit permutations and PPO's sampled entropy noise from its ``ReplicaStreams
 from the learner's own generator), in the loop's order and sizes.
 
 How it stays the loop's arithmetic: linear layers run as one batched matmul (``torch.baddbmm``), which on this CPU
-build rounds exactly as ``F.linear`` does for each replica, except at an output width of 1 (value heads), where one
-replica's ``F.linear`` runs a gemv and a batched matmul of several replicas does not: those run per replica, as do
-other layers with parameters (the image encoder). Adam runs on the stacks with each replica's own scalars; the
-scalars a replica's decisions hinge on (the conjugate-gradient dot products, the line search's tests, the advantage
-statistics, the logs) are computed per replica with the loop's kernels. Measured (``tests/test_stacked_updates.py``):
-TRPO and PPO on vectors and PPO on images are bit-identical to the loop, hence a replica's results do not depend on
-R or on the other replicas; TRPO on images differs by an ulp or so (its Fisher-vector products through the convs
-accumulate in another order).
+build rounds exactly as ``F.linear`` does for each replica except where one of them takes another kernel: a product
+of under 400 multiply-adds (ATen's naive batched loop) and a width of 1 (value heads: ``F.linear``'s gemv); those run
+per replica (``_runs_per_replica``), as do other layers with parameters (the image encoder). Where the order of the
+arithmetic decides the rounding, the stacked update keeps the loop's: no view stands between a linear layer and its
+input (the autograd engine sums the gradients reaching a tensor in the order they arrive, and a Fisher-vector
+product, a double backward, sums three at each tanh output: ``_run``); GAE runs the value network on observations
+and next observations as one block of rows, as the loop's ``vmap`` does; the distribution math runs per replica
+where a replica's elements do not fill whole vector steps (``_aligned``); the sampled entropy takes TorchRL's
+operations in its order. Adam runs on the stacks with each replica's own scalars; the scalars a replica's decisions
+hinge on (the conjugate-gradient dot products, the line search's tests, the advantage statistics, the logs) are
+computed per replica with the loop's kernels. Measured (``tests/test_stacked_updates.py``): TRPO and PPO on vectors
+and on images are bit-identical to the loop, at the default sizes and at small odd ones, hence a replica's results
+do not depend on R or on the other replicas.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ import torch.nn.functional as F
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale
 from torch import nn
+from torch.distributions.utils import _sum_rightmost
 from torch.func import functional_call
 from torchrl.modules import MLP, TanhNormal
 from torchrl.modules.distributions import has_analytic_entropy
@@ -60,9 +66,11 @@ def _is_chain(module: nn.Module) -> bool:
     return type(module) is nn.Sequential or (isinstance(module, MLP) and isinstance(module.out_features, int))
 
 
-def _unbind(stack: torch.Tensor | dict[str, torch.Tensor]) -> list[Any]:
-    """An (R, ...) tensor, or a dict of them, as R per-replica slices (``unbind``: its backward is one stack, not a
-    zero-filled copy per replica)."""
+def _unbind(stack: torch.Tensor | tuple[torch.Tensor, ...] | dict[str, torch.Tensor]) -> list[Any]:
+    """An (R, ...) tensor, or a tuple or dict of them, as R per-replica slices (``unbind``: its backward is one
+    stack, not a zero-filled copy per replica)."""
+    if isinstance(stack, tuple):
+        return list(zip(*(tensor.unbind(0) for tensor in stack)))
     if isinstance(stack, dict):
         unbound = {key: tensor.unbind(0) for key, tensor in stack.items()}
         return [dict(zip(unbound, values)) for values in zip(*unbound.values())]
@@ -72,6 +80,18 @@ def _unbind(stack: torch.Tensor | dict[str, torch.Tensor]) -> list[Any]:
 def _per_replica_call(function: Callable[..., torch.Tensor], *stacks: Any) -> torch.Tensor:
     """``function`` on each replica's slices of ``stacks``, the results stacked: the loop's own kernels."""
     return torch.stack([function(*arguments) for arguments in zip(*map(_unbind, stacks))])
+
+
+# ATen's vectorised elementwise loop takes a contiguous tensor two vectors at a time (2 × 64 bytes at most, with
+# AVX-512) and its remainder with scalar code, which rounds some functions (atanh, softplus, sigmoid: TanhNormal's
+# log-prob) otherwise than the vector code does.
+VECTOR_STEP_BYTES = 128
+
+
+def _aligned(stack: torch.Tensor) -> bool:
+    """Whether each replica's block of the (R, ...) ``stack`` is a whole number of vectorised steps: then an
+    elementwise kernel on the stack computes each element as that replica's own (smaller) tensor would."""
+    return stack[0].numel() * stack.element_size() % VECTOR_STEP_BYTES == 0
 
 
 # ATen's CPU batched matmul (bmm, baddbmm) runs its own naive loop for a product of fewer than this many
@@ -408,14 +428,16 @@ class StackedUpdate(abc.ABC):
     @staticmethod
     @torch.no_grad()
     def _advantages(data: TensorDictBase, value: StackedNetwork, gae: GAE) -> TensorDictBase:
-        """GAE for every replica at once: ``state_value`` of both steps by the stacked value network (as each
-        learner's GAE computes them with its own), then ``gae`` (built without a network) reads them."""
+        """GAE for every replica at once: ``state_value`` of both steps by the stacked value network, then ``gae``
+        (built without a network) reads them. Each learner's GAE runs its network once on its observations and
+        next observations stacked (``vmap`` over the two folds them into one block of rows, the observations'
+        first): so do the replicas here, as row count and order can change how a matmul rounds a row."""
         replicas = data.batch_size[0]
-        for key in ("observation", ("next", "observation")):
-            observation = data.get(key)
-            flat = observation.reshape(replicas, -1, *observation.shape[data.batch_dims:])
-            value_key = "state_value" if key == "observation" else ("next", "state_value")
-            data.set(value_key, value(flat).reshape(*data.batch_size, -1))
+        both = [data.get(key).reshape(replicas, -1, *data.get(key).shape[data.batch_dims:])
+                for key in ("observation", ("next", "observation"))]
+        values = value(torch.cat(both, 1))
+        for key, values_of in zip(("state_value", ("next", "state_value")), values.chunk(2, 1)):
+            data.set(key, values_of.reshape(*data.batch_size, -1).contiguous())
         return gae(data)
 
     @staticmethod
@@ -430,11 +452,31 @@ class StackedUpdate(abc.ABC):
         modules = [algo.actor.module[0] for algo in self.algos]
         return StackedNetwork([module.module for module in modules]), list(modules[0].out_keys)
 
-    def _dist(self, outputs: Any, keys: list[str]) -> torch.distributions.Distribution:
-        """The distribution of R × N samples from the stacked policy's outputs (a tensor or a tuple, as ``keys``)."""
+    def _dist(self, outputs: Any, keys: list[str], batch_dims: int = 2) -> torch.distributions.Distribution:
+        """The distribution of R × N samples from the stacked policy's outputs (a tensor or a tuple, as ``keys``),
+        or with ``batch_dims=1`` of one replica's N samples from its own outputs."""
         outputs = outputs if isinstance(outputs, tuple) else (outputs,)
-        params = TensorDict(dict(zip(keys, outputs)), batch_size=outputs[0].shape[:2])
+        params = TensorDict(dict(zip(keys, outputs)), batch_size=outputs[0].shape[:batch_dims])
         return self.algos[0].actor.build_dist_from_params(params)
+
+    @staticmethod
+    def _distribution_math(function: Callable[..., Any], outputs: tuple[torch.Tensor, ...], *stacks: Any) -> Any:
+        """``function(outputs, *stacks, batch_dims)`` on the policy's stacked ``outputs`` (R, N, ...) and the other
+        (R, ...) ``stacks``: at once when each replica's block of the outputs is ``_aligned``, else on each
+        replica's slices (``batch_dims=1``; the loop's kernels on the loop's shapes) with the results stacked: an
+        elementwise kernel on a stack would compute a replica's last elements with vector code where its own
+        tensor's scalar remainder rounds otherwise."""
+        if _aligned(outputs[0]):
+            return function(outputs, *stacks, 2)
+        results = [function(*arguments, 1) for arguments in zip(*map(_unbind, (outputs, *stacks)))]
+        if isinstance(results[0], tuple):
+            return tuple(torch.stack(parts) for parts in zip(*results))
+        return torch.stack(results)
+
+    def _log_prob(self, outputs: tuple[torch.Tensor, ...], action: torch.Tensor) -> torch.Tensor:
+        """(R, N) log-probabilities of ``action`` under the distributions of the stacked policy ``outputs``."""
+        return self._distribution_math(
+            lambda params, taken, dims: self._dist(params, self.keys, dims).log_prob(taken), outputs, action)
 
     def _update_observation_statistics(self, observation: torch.Tensor, *networks: StackedNetwork) -> None:
         for algo, rows in zip(self.algos, observation):
@@ -467,7 +509,7 @@ class StackedTRPO(StackedUpdate):
             flat["features"] = self.policy.features(flat["observation"])
             outputs = self.policy(flat["features"], from_features=True)
             flat["old_policy"] = outputs if isinstance(outputs, tuple) else (outputs,)
-            flat["action_log_prob"] = self._dist(flat["old_policy"], self.keys).log_prob(flat["action"])
+            flat["action_log_prob"] = self._log_prob(flat["old_policy"], flat["action"])
         logs = self._policy_step(flat)
         for replica_logs, value_logs in zip(logs, self._fit_value(flat, permutations)):
             replica_logs.update(value_logs)
@@ -486,9 +528,15 @@ class StackedTRPO(StackedUpdate):
 
     def _terms(self, params: dict[str, torch.Tensor], flat: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
         """(minus the surrogate, mean KL, entropy), each (R,), at the stacked policy parameters ``params``."""
-        dist = self._dist(self.policy(flat["features"], params, from_features=True), self.keys)
-        return surrogate_terms(dist, self._dist(flat["old_policy"], self.keys), flat["action"],
-                               flat["action_log_prob"], flat["advantage"], self.config.entropy_coef)
+        outputs = self.policy(flat["features"], params, from_features=True)
+
+        def terms(new: tuple[torch.Tensor, ...], old: tuple[torch.Tensor, ...], action: torch.Tensor,
+                  old_log_prob: torch.Tensor, advantage: torch.Tensor, dims: int) -> tuple[torch.Tensor, ...]:
+            return surrogate_terms(self._dist(new, self.keys, dims), self._dist(old, self.keys, dims), action,
+                                   old_log_prob, advantage, self.config.entropy_coef)
+
+        return self._distribution_math(terms, outputs if isinstance(outputs, tuple) else (outputs,),
+                                       flat["old_policy"], flat["action"], flat["action_log_prob"], flat["advantage"])
 
     def _fisher(self, params: dict[str, torch.Tensor], flat: dict[str, torch.Tensor]
                 ) -> Callable[[torch.Tensor], torch.Tensor]:
@@ -625,8 +673,10 @@ class StackedPPO(StackedUpdate):
         with torch.no_grad():
             flat["policy_features"] = self.policy.features(flat["observation"])
             flat["value_features"] = self.value.features(flat["observation"])
-            reference = self._dist(self.policy(flat["policy_features"], from_features=True), self.keys)
-            flat["action_log_prob"] = reference.log_prob(flat["action"])
+            outputs = self.policy(flat["policy_features"], from_features=True)
+            outputs = outputs if isinstance(outputs, tuple) else (outputs,)
+            reference = self._dist(outputs, self.keys)
+            flat["action_log_prob"] = self._log_prob(outputs, flat["action"])
         samples = flat["observation"].shape[1]
         orders = [torch.stack([torch.randperm(samples, generator=algo._generator) for algo in self.algos])
                   .to(self.device) for _ in range(cfg.epochs)]
@@ -686,17 +736,34 @@ class StackedPPO(StackedUpdate):
         ``clipped_ppo_update`` sums them) for PPO's settings: no advantage normalisation, no value clipping,
         smooth-L1 critic loss, mean reduction."""
         loss = self.algos[0].loss
-        dist = self._dist(self.policy(minibatch["policy_features"], policy_params, from_features=True), self.keys)
-        log_weight = (dist.log_prob(minibatch["action"]) - minibatch["action_log_prob"]).unsqueeze(-1)
+        outputs = self.policy(minibatch["policy_features"], policy_params, from_features=True)
+        # The sampled entropy's draw, (1, R, M, ...), as an (R, ...) stack: one (1, M, ...) draw a replica.
+        draws = () if noise is None else (noise.transpose(0, 1),)
+        log_prob, entropy = self._distribution_math(self._log_prob_and_entropy,
+                                                    outputs if isinstance(outputs, tuple) else (outputs,),
+                                                    minibatch["action"], *draws)
+        log_weight = (log_prob - minibatch["action_log_prob"]).unsqueeze(-1)
         advantage = minibatch["advantage"]
         gain1 = log_weight.exp() * advantage
         gain2 = log_weight.clamp((-loss.clip_epsilon).log1p(), loss.clip_epsilon.log1p()).exp() * advantage
         gain = torch.stack([gain1, gain2], -1).min(dim=-1).values
-        entropy = (dist.entropy() if noise is None else self._sampled_entropy(dist, noise)).unsqueeze(-1)
+        entropy = entropy.unsqueeze(-1)
         value = self.value(minibatch["value_features"], value_params, from_features=True)
         critic = loss.critic_coeff * F.smooth_l1_loss(minibatch["value_target"], value, reduction="none")
         terms = {"loss_objective": -gain, "loss_entropy": -loss.entropy_coeff * entropy, "loss_critic": critic}
         return {key: term.flatten(1).mean(1) for key, term in terms.items()}
+
+    def _log_prob_and_entropy(self, outputs: tuple[torch.Tensor, ...], action: torch.Tensor, *rest: Any
+                              ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The log-probability of ``action`` and the entropy (analytic, or sampled from the draw that ``rest`` holds
+        before ``batch_dims``) of the policy's distribution, for ``_distribution_math``."""
+        *draw, batch_dims = rest
+        dist = self._dist(outputs, self.keys, batch_dims)
+        log_prob = dist.log_prob(action)
+        if not draw:
+            return log_prob, dist.entropy()
+        # Stacked, the draw comes replica-first, (R, 1, M, ...): sample-first, as the loss draws it.
+        return log_prob, self._sampled_entropy(dist, draw[0] if batch_dims == 1 else draw[0].transpose(0, 1))
 
     @staticmethod
     def _sampled_entropy(dist: TanhNormal, noise: torch.Tensor) -> torch.Tensor:
@@ -705,8 +772,11 @@ class StackedPPO(StackedUpdate):
         root = dist.root_dist
         preimage = root.loc + noise * root.scale
         transform = dist.transforms[0]
-        jacobian = transform.log_abs_det_jacobian(preimage, transform(preimage))
-        log_prob = dist.base_dist.log_prob(preimage) - jacobian.flatten(-len(dist.event_shape)).sum(-1)
+        sample = transform(preimage)
+        # Its operations in its order (the base log-prob before the Jacobian): the order the autograd engine sums
+        # the gradients that reach ``preimage`` along them follows it.
+        log_prob = dist.base_dist.log_prob(preimage) - _sum_rightmost(
+            transform.log_abs_det_jacobian(preimage, sample), len(dist.event_shape))
         return -log_prob.mean(0)
 
 
