@@ -8,9 +8,8 @@ same R runs one after another, each ``runners/main.py`` end to end, on this mach
 Each setup is a default run (``env=continuous`` with its TRPO and PRM agent; the grid's DQN against Dijkstra) at
 ``--iterations`` iterations (the default runs' own budgets with ``--full``), evaluated at the end. Printed per setup:
 the group's and the one-after-another wall-clock and their ratio, and each replica's final success beside its lone
-run's (the group's replicas update in one vectorised pass where the learner has one, which rounds differently from
-a lone update, so the two may part; ``within spread`` says whether each replica's success lies within the lone
-runs' range).
+run's (a replica is the run it would be alone, so the two agree; ``within spread`` says whether each replica's
+success lies within the lone runs' range).
 """
 
 from __future__ import annotations

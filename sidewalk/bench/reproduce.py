@@ -54,16 +54,17 @@ PROBE_ITERATIONS = 40
 PROBE_PERIOD = 20  # iterations between the probe's evaluations and checkpoints
 
 
-def presets() -> list[str]:
-    """The presets ``runners/reproduce.sh`` sweeps, read from its ``presets=(...)`` line."""
-    match = re.search(r"^presets=\(([^)]*)\)", SCRIPT.read_text(), re.MULTILINE)
+def presets(script: Path = SCRIPT) -> list[str]:
+    """The presets a ``runners/reproduce.sh`` sweeps, read from its ``presets=(...)`` line."""
+    match = re.search(r"^presets=\(([^)]*)\)", script.read_text(), re.MULTILINE)
     if match is None:
-        raise RuntimeError(f"{SCRIPT} has no presets=(...) line")
+        raise RuntimeError(f"{script} has no presets=(...) line")
     return match.group(1).split()
 
 
-def sweep(preset: str) -> dict[str, Any]:
-    """The preset's runs (each a list of overrides) and its periods, as ``runners/main.py -m`` would expand it."""
+def sweep(preset: str, conf_dir: Path | None = None) -> dict[str, Any]:
+    """The preset's runs (each a list of overrides) and its periods, as ``runners/main.py -m`` would expand it from
+    the config folder ``conf_dir`` (default: this checkout's); a revision's presets are its own."""
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
@@ -72,7 +73,7 @@ def sweep(preset: str) -> dict[str, Any]:
 
     register_schemas()
     GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(conf_dir or CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=[f"+experiment={preset}"], return_hydra_config=True)
     params = {key: str(value).split(",") for key, value in cfg.hydra.sweeper.params.items()}
     names = list(params)
@@ -143,11 +144,14 @@ def run(baseline: str | None = None, processes: int = 2, probe_iterations: int =
         raise ValueError(f"--probe-iterations {probe_iterations} with --probe-period {probe_period}: the probe needs "
                          f"a period of at least 2 and at least {WARMUP + probe_period + 2} iterations (an evaluation, "
                          f"a checkpoint and steady iterations after {WARMUP} of warm-up)")
-    sweeps = [sweep(preset) for preset in presets()]
-    # The distinct runs: a preset's runs without their seeds (the probe runs seed 0).
-    distinct = {_run_key(spec["preset"], overrides): None for spec in sweeps for overrides in spec["runs"]}
     with tempfile.TemporaryDirectory(prefix="sidewalk-reproduce-") as tmp, revision_trees(baseline, tmp) as trees:
-        jobs = [(key, name, tree) for key in distinct for name, tree in trees.items()]
+        # Each revision's own presets: a revision whose presets train their seeds as one group has fewer, larger jobs.
+        sweeps = {name: [sweep(preset, tree / "conf") for preset in presets(tree / "runners" / "reproduce.sh")]
+                  for name, tree in trees.items()}
+        # The distinct runs: a preset's runs without their seeds (the probe runs seed 0).
+        jobs = [(key, name, tree) for name, tree in trees.items()
+                for key in dict.fromkeys(_run_key(spec["preset"], overrides)
+                                         for spec in sweeps[name] for overrides in spec["runs"])]
 
         def probe(numbered_job):
             number, (key, name, tree) = numbered_job
@@ -158,27 +162,32 @@ def run(baseline: str | None = None, processes: int = 2, probe_iterations: int =
         with ThreadPoolExecutor(max_workers=probes_at_once or processes) as pool:
             costs = dict(zip(((key, name) for key, name, _ in jobs), pool.map(probe, enumerate(jobs))))
     rows: list[dict[str, Any]] = []
-    totals = dict.fromkeys(trees, 0.0)
+    for name in trees:
+        rows.extend(_estimate_rows(name, sweeps[name], costs, processes))
+    return rows
+
+
+def _estimate_rows(name: str, sweeps: list[dict[str, Any]], costs: dict[tuple, dict[str, float]],
+                   processes: int) -> list[dict[str, Any]]:
+    """One revision's rows: each distinct run's costs, each sweep's makespan and the total."""
+    rows: list[dict[str, Any]] = []
+    total = 0.0
     for spec in sweeps:
         keys = [_run_key(spec["preset"], overrides) for overrides in spec["runs"]]
-        per_tree = {name: [run_seconds(costs[key, name], spec["iterations"], spec["eval_every"],
-                                       spec["checkpoint_every"]) for key in keys] for name in trees}
         for key in dict.fromkeys(keys):
-            for name in trees:
-                cost = costs[key, name]
-                rows.append({"preset": spec["preset"], "run": " ".join(key[1:]) or "(preset)", "revision": name,
-                             "ms/iteration": cost["ms_per_iteration"], "eval s": cost["eval_s"],
-                             "checkpoint s": cost["checkpoint_s"], "fixed s": cost["fixed_s"],
-                             "run s": run_seconds(cost, spec["iterations"], spec["eval_every"],
-                                                  spec["checkpoint_every"])})
-        for name in trees:
-            wall = makespan(per_tree[name], processes)
-            totals[name] += wall
-            rows.append({"preset": spec["preset"], "run": f"sweep: {len(spec['runs'])} runs x {spec['iterations']} "
-                         f"iterations, {processes} at a time", "revision": name, "run s": wall})
-    for name, total in totals.items():
-        rows.append({"preset": "reproduce.sh full", "run": f"total ({total / 3600:.2f} h)", "revision": name,
-                     "run s": total})
+            cost = costs[key, name]
+            rows.append({"preset": spec["preset"], "run": " ".join(key[1:]) or "(preset)", "revision": name,
+                         "ms/iteration": cost["ms_per_iteration"], "eval s": cost["eval_s"],
+                         "checkpoint s": cost["checkpoint_s"], "fixed s": cost["fixed_s"],
+                         "run s": run_seconds(cost, spec["iterations"], spec["eval_every"], spec["checkpoint_every"])})
+        wall = makespan([run_seconds(costs[key, name], spec["iterations"], spec["eval_every"], spec["checkpoint_every"])
+                         for key in keys], processes)
+        total += wall
+        seeds = f", {spec['replicas']} seeds each" if spec.get("replicas", 1) > 1 else ""
+        rows.append({"preset": spec["preset"], "run": f"sweep: {len(spec['runs'])} jobs{seeds} x {spec['iterations']} "
+                     f"iterations, {processes} at a time", "revision": name, "run s": wall})
+    rows.append({"preset": "reproduce.sh full", "run": f"total ({total / 3600:.2f} h)", "revision": name,
+                 "run s": total})
     return rows
 
 
