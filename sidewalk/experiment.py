@@ -126,6 +126,16 @@ class Progress:
     def elapsed(self) -> float:
         return time.perf_counter() - self.started
 
+    def due(self, experiment: Experiment, stop: bool, signals: StopSignals) -> tuple[bool, bool, bool, bool]:
+        """After an iteration: (done, interrupted by a signal, a checkpoint due, metrics.csv due). The end writes
+        its own checkpoint (``keep_checkpoint=all``) or none, so a checkpoint is due only before it."""
+        done = stop or self.iteration >= experiment.iterations
+        interrupted = signals.received is not None and not done
+        periodic = bool(experiment.checkpoint_every) and self.iteration % experiment.checkpoint_every == 0
+        checkpoint = interrupted or periodic
+        metrics = checkpoint or done or time.perf_counter() - self.last_write > METRICS_EVERY_S
+        return done, interrupted, checkpoint and not done, metrics
+
 
 class Trial:
     """Train one learner with one seed and write its run folder (see the module docstring)."""
@@ -276,20 +286,17 @@ class Trial:
 
     def _after_iteration(self, parts: Parts, state: Progress, stop: bool, signals: StopSignals, bar: tqdm) -> bool:
         """Checkpoint and write metrics when due; leave on a signal (``RunInterrupted``); True when training is done."""
-        exp, iteration = self.experiment, state.iteration
-        done = stop or iteration >= exp.iterations
-        interrupted = signals.received is not None and not done
-        checkpoint_now = interrupted or (exp.checkpoint_every and iteration % exp.checkpoint_every == 0)
-        if checkpoint_now and not done:  # the end writes its own (keep_checkpoint=all) or none
+        done, interrupted, checkpoint, metrics = state.due(self.experiment, stop, signals)
+        if checkpoint:
             self._checkpoint(parts, state, state.elapsed())
-        if checkpoint_now or done or time.perf_counter() - state.last_write > METRICS_EVERY_S:
+        if metrics:
             self._write_metrics(state.rows)
             state.last_write = time.perf_counter()
         if interrupted:
             bar.close()
             parts.collector.shutdown()
-            self._history("interrupted", iteration=iteration, signal=signal.Signals(signals.received).name)
-            raise RunInterrupted(signals.received, iteration, self.run_dir)
+            self._history("interrupted", iteration=state.iteration, signal=signal.Signals(signals.received).name)
+            raise RunInterrupted(signals.received, state.iteration, self.run_dir)
         return done
 
     def _checkpoint(self, parts: Parts, state: Progress, elapsed: float) -> None:

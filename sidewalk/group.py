@@ -23,8 +23,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
-import sys
 import signal
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -45,7 +45,6 @@ from sidewalk.algos.stacked import vectorized_update
 from sidewalk.config import Experiment
 from sidewalk.experiment import (
     EVAL_SEED_OFFSET,
-    METRICS_EVERY_S,
     Parts,
     Progress,
     Trial,
@@ -56,12 +55,12 @@ from sidewalk.loggers import make_logger
 from sidewalk.run_folder import (
     CHECKPOINT,
     CONFIG,
+    GROUP_DIR,
     PREVIOUS_CHECKPOINT,
     SUMMARY,
-    GROUP_DIR,
-    atomic_write,
     RunFolderError,
     append_history,
+    atomic_write,
     check,
     drop_training_state,
     git_revision,
@@ -74,7 +73,6 @@ from sidewalk.run_folder import (
 from sidewalk.snapshot import capture_env, capture_rng, restore_env, restore_rng
 from sidewalk.stops import RunInterrupted, StopSignals
 from sidewalk.streams import ReplicaStreams
-
 
 
 def replica_seeds(experiment: Experiment) -> list[int]:
@@ -117,19 +115,18 @@ def check_group(run_dir: Path, experiment: Experiment, config: dict[str, Any]) -
 class ReplicaPolicy(TensorDictModuleBase):
     """Each replica's policy on its own block of worlds, drawing from its own random stream; one output for all."""
 
-    def __init__(self, policies: list[TensorDictModuleBase], streams: ReplicaStreams, worlds: int) -> None:
+    def __init__(self, policies: list[TensorDictModuleBase], streams: ReplicaStreams, blocks: list[slice]) -> None:
         super().__init__()
         self.policies = torch.nn.ModuleList(policies)
-        self.streams, self.worlds = streams, worlds
+        self.streams, self.blocks = streams, blocks
         self.in_keys = list(policies[0].in_keys)
         self.out_keys = list(policies[0].out_keys)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         outputs = []
-        for replica, policy in enumerate(self.policies):
+        for replica, (policy, block) in enumerate(zip(self.policies, self.blocks)):
             with self.streams.use(replica):
-                block = tensordict[replica * self.worlds : (replica + 1) * self.worlds]
-                outputs.append(policy(block))
+                outputs.append(policy(tensordict[block]))
         return torch.cat(outputs, 0)
 
 
@@ -149,7 +146,7 @@ class GroupTrial:
         self, experiment: Experiment, run_dir: str | Path, config: dict | None = None, vectorize: bool = True
     ) -> None:
         """``vectorize=False``: update the replicas one after another even where the learner has a vectorised
-        update (whose batched kernels round differently from a lone update's)."""
+        update (the two give the same numbers; tests compare them)."""
         self.experiment = experiment
         self.vectorize = vectorize
         self.run_dir = Path(run_dir)
@@ -214,7 +211,8 @@ class GroupTrial:
         for replica in range(count):
             with self.streams.use(replica):
                 algos.append(ALGORITHMS[exp.algo.name](exp.algo, train_env, device=exp.device))
-        policy = ReplicaPolicy([algo.collection_policy() for algo in algos], self.streams, exp.num_envs)
+        self.blocks = train_env.base_env.core.replica_blocks()
+        policy = ReplicaPolicy([algo.collection_policy() for algo in algos], self.streams, self.blocks)
         frames_per_batch = collector_frames_per_batch(exp)
         collector = Collector(
             train_env, policy, frames_per_batch=count * frames_per_batch,
@@ -280,42 +278,40 @@ class GroupTrial:
     def _iteration(self, replicas: list[Replica], collector: Collector, batch: TensorDictBase) -> None:
         """Every replica's update on its block of the batch (one vectorised pass where the learner has one), then
         each replica's metrics row, with its evaluation when one is due, on its own stream."""
-        worlds = self.experiment.num_envs
-        blocks = [batch[index * worlds : (index + 1) * worlds] for index in range(len(replicas))]
+        batches = [batch[block] for block in self.blocks]
         if self.stacked is not None:
-            logs = self.stacked.update(blocks, self.streams)
+            logs = self.stacked.update(batches, self.streams)
         else:
             logs = []
-            for index, (replica, block) in enumerate(zip(replicas, blocks)):
+            for index, (replica, own) in enumerate(zip(replicas, batches)):
                 with self.streams.use(index):
-                    logs.append(replica.parts.algo.update(block, replica.parts.replay_buffer))
+                    logs.append(replica.parts.algo.update(own, replica.parts.replay_buffer))
         collector.update_policy_weights_()
-        for index, (replica, block, update_logs) in enumerate(zip(replicas, blocks, logs)):
+        for index, (replica, own, update_logs) in enumerate(zip(replicas, batches, logs)):
             with self.streams.use(index):
-                replica.trial._record(replica.parts, replica.state, block, update_logs)
+                replica.trial._record(replica.parts, replica.state, own, update_logs)
 
     def _after_iteration(
         self, replicas: list[Replica], collector: Collector, signals: StopSignals, bar: tqdm
     ) -> bool:
         """Checkpoint the group and write metrics when due; leave on a signal; True when training is done."""
-        exp, state = self.experiment, replicas[0].state
-        iteration = state.iteration
-        done = iteration >= exp.iterations
-        interrupted = signals.received is not None and not done
-        checkpoint_now = interrupted or (exp.checkpoint_every and iteration % exp.checkpoint_every == 0)
-        if checkpoint_now and not done:
+        state = replicas[0].state
+        done, interrupted, checkpoint, metrics = state.due(self.experiment, False, signals)
+        if checkpoint:
             self._checkpoint(replicas, collector)
-        if checkpoint_now or done or time.perf_counter() - state.last_write > METRICS_EVERY_S:
+        if metrics:
             for replica in replicas:
                 replica.trial._write_metrics(replica.state.rows)
                 replica.state.last_write = time.perf_counter()
         if interrupted:
             bar.close()
             collector.shutdown()
-            for folder in (self.group_dir, *(replica.trial.run_dir for replica in replicas)):
-                append_history(folder, "interrupted", iteration=iteration,
-                               signal=signal.Signals(signals.received).name)
-            raise RunInterrupted(signals.received, iteration, self.run_dir)
+            stopped = {"iteration": state.iteration, "signal": signal.Signals(signals.received).name}
+            if self.config:
+                append_history(self.group_dir, "interrupted", **stopped)
+            for replica in replicas:
+                replica.trial._history("interrupted", **stopped)
+            raise RunInterrupted(signals.received, state.iteration, self.run_dir)
         return done
 
     def _checkpoint(self, replicas: list[Replica], collector: Collector) -> None:

@@ -47,10 +47,11 @@ def restore_env(view: EnvBase, state: dict[str, Any]) -> None:
         setattr(view.core, name, value)
     for name, value in state.get("opponent", {}).items():
         setattr(view.opponent, name, value)
-    replicas = getattr(getattr(view, "opponent", None), "opponents", ())
-    for opponent, attributes in zip(replicas, state.get("opponent_replicas", ())):
+    opponent = getattr(view, "opponent", None)
+    replicas = opponent.opponents if isinstance(opponent, ReplicaOpponent) else ()
+    for each, attributes in zip(replicas, state.get("opponent_replicas", ())):
         for name, value in attributes.items():
-            setattr(opponent, name, value)
+            setattr(each, name, value)
     rng = state["rng"]
     generators = getattr(view.core, "generators", [view.core.generator])
     if isinstance(rng, list) != (len(generators) > 1) or (isinstance(rng, list) and len(rng) != len(generators)):

@@ -81,7 +81,7 @@ def test_the_vectorised_update_equals_one_replica_at_a_time(tmp_path, setup):
 
 def main_py(*overrides: str, timeout: float = 600, check: bool = True) -> subprocess.CompletedProcess:
     result = subprocess.run([sys.executable, "runners/main.py", *overrides], cwd=ROOT, capture_output=True,
-                            text=True, timeout=timeout)
+                            text=True, timeout=timeout, check=False)  # the caller decides what a failure means
     if check and result.returncode != 0:
         raise AssertionError(f"main.py failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
     return result

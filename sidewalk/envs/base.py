@@ -478,6 +478,11 @@ class SidewalkEnvBase(EnvBase):
             for r, generator in enumerate(self.generators)
         ])
 
+    def replica_blocks(self) -> list[slice]:
+        """Each replica's worlds, in replica order: slices of the world dimension."""
+        size = self.worlds_per_replica
+        return [slice(replica * size, (replica + 1) * size) for replica in range(self.replicas)]
+
     def replicas_of(self, rows: torch.Tensor | None) -> list[bool]:
         """Per replica, whether it holds one of the worlds ``rows`` (bool (num_envs,); None: every world)."""
         if rows is None:

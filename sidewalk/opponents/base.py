@@ -136,8 +136,7 @@ class ReplicaOpponent(Opponent):
             raise ValueError(f"{len(opponents)} opponents for an env of {env.replicas} replicas")
         self.opponents = torch.nn.ModuleList(opponents)
         self.in_keys = list(opponents[0].in_keys)
-        size = env.worlds_per_replica
-        self._blocks = [slice(r * size, (r + 1) * size) for r in range(env.replicas)]
+        self._blocks = env.replica_blocks()
 
     def act(
         self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None = None

@@ -639,10 +639,9 @@ class PRMOpponent(Opponent):
         replicas = getattr(self.env, "replicas", 1)
         if replicas == 1 or len(state) != self.env.num_envs:
             return self._steer(state, goal, done, waypoint)
-        size = self.env.worlds_per_replica
-        blocks = [slice(r * size, (r + 1) * size) for r in range(replicas)]
         return torch.cat([
-            self._steer(state[block], goal[block], done[block], waypoint[..., block].contiguous()) for block in blocks
+            self._steer(state[block], goal[block], done[block], waypoint[..., block].contiguous())
+            for block in self.env.replica_blocks()
         ])
 
     def _steer(

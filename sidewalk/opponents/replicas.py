@@ -49,6 +49,10 @@ class ReplicaEnv:
             self._full_action_spec = self.core.full_action_spec[: self.num_envs]
         return self._full_action_spec
 
+    def replica_blocks(self) -> list[slice]:
+        """One replica: all of its worlds (``SidewalkEnvBase.replica_blocks`` of a lone env)."""
+        return [slice(0, self.num_envs)]
+
     def rand(self, shape: Any, rows: torch.Tensor | None = None) -> torch.Tensor:
         """``torch.rand(shape)`` from this replica's generator (``SidewalkEnvBase.rand`` of a lone env)."""
         return torch.rand(shape, generator=self.generator, device=self.core.device)
