@@ -79,7 +79,7 @@ CASES = {
     "ego-random-grid": lambda n, seed: EgoView(grid(n, seed), "random"),
     "ego-random-plane-shield": lambda n, seed: EgoView(plane(n, seed), "random", shield=True),
     "ego-dijkstra-grid": lambda n, seed: EgoView(grid(n, seed, n_agents=3), "dijkstra"),
-    "ego-prm-plane": lambda n, seed: EgoView(plane(n, seed), "prm"),
+    "ego-prm-plane": lambda n, seed: EgoView(plane(n, seed), "prm", opponent_kwargs={"roadmap_seed": None}),
     "ego-prm-seeded-plane": lambda n, seed: EgoView(plane(n, seed), "prm", opponent_kwargs={"roadmap_seed": 4}),
     "ego-prm-seeded-door": lambda n, seed: EgoView(
         plane(n, seed, layout="door", n_agents=3), "prm", opponent_kwargs={"roadmap_seed": 4}
@@ -170,7 +170,8 @@ def test_opponents_are_planned_once_unless_the_seed_or_the_batch_decides():
     assert type(make_opponent("random", discrete)) is RandomOpponent
     assert type(make_opponent("dijkstra", discrete)) is DijkstraOpponent
     assert type(make_opponent("prm", continuous, roadmap_seed=4)) is PRMOpponent
-    per_replica = make_opponent("prm", continuous)
+    assert type(make_opponent("prm", continuous)) is PRMOpponent  # the default roadmap is every seed's
+    per_replica = make_opponent("prm", continuous, roadmap_seed=None)  # each env's seed draws its roadmap
     assert isinstance(per_replica, ReplicaOpponent)
     assert [o.roadmap_seed for o in per_replica.opponents] == list(SEEDS)
     assert [o.env.num_envs for o in per_replica.opponents] == [2, 2, 2]

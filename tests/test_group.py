@@ -33,7 +33,8 @@ TRPO_CONTINUOUS = ["env=continuous", "opponent=prm", "num_envs=8", "algo.frames_
                    "algo.vf_batch_size=16", "noise=0.5"]
 SETUPS = {
     "dqn-grid": DQN_GRID,
-    "trpo-continuous": TRPO_CONTINUOUS,
+    "trpo-continuous": TRPO_CONTINUOUS,  # the configured roadmap: one PRM plans every replica's worlds
+    "trpo-continuous-roadmap-per-seed": [*TRPO_CONTINUOUS, "opponent.params.roadmap_seed=null"],  # a PRM per replica
     "ppo-continuous-random": ["env=continuous", "opponent=random", "algo=ppo", "num_envs=8",
                               "algo.frames_per_batch=64", "algo.minibatch_size=32", "noise=0.5"],
     "centralized-dqn": ["opponent=centralized", *DQN_GRID],

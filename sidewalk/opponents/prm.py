@@ -57,6 +57,7 @@ PAIRED_SLABS = 24
 PAIRED_MAX_LANES = 256
 # Edge-world elements priced per chunk: the chunk's temporaries (~2 MB at 2^17) stay in a core's L2 cache.
 CHUNK_ELEMENTS = 2**17
+ROADMAP_SEED = 0  # the default roadmap, every run's: the opponent does not change with the learner's seed
 FAR_M = 1e6  # absent agents are avoided here: far enough that no segment comes near, finite so no inf - inf
 
 
@@ -178,9 +179,11 @@ class PRMOpponent(Opponent):
     ``wall_clearance_m`` from every wall and box, a point being dropped if it lands within
     ``NODE_SPACING_FRACTION`` of the mean spacing of one already kept; each joined to its ``max_neighbors``
     nearest within ``connection_radius_m`` (made symmetric; edges that would touch a box are dropped); only the
-    largest connected piece is kept. The points come from a generator seeded with ``roadmap_seed``, or, if
-    ``None``, with the seed ``env.generator`` holds at construction (so the env's seed fixes the roadmap, and no
-    draw from it is spent). Opponents on the same layout, agent radius, roadmap parameters and seed share it.
+    largest connected piece is kept. The points come from a generator seeded with ``roadmap_seed`` (0 by default:
+    one roadmap for every run, so the opponent is the same whatever the learner's seed, and one call plans every
+    replica of a group), or, if ``None``, with the seed ``env.generator`` holds at construction (so the env's seed
+    fixes the roadmap, and no draw from it is spent). Opponents on the same layout, agent radius, roadmap parameters
+    and seed share it.
 
     Plan, every step: a straight segment costs its length times 1 + ``avoid_weight`` × its closeness to the
     other present agents (with two agents, the ego): the closeness of its point nearest an agent, falling
@@ -210,8 +213,8 @@ class PRMOpponent(Opponent):
 
     @classmethod
     def replicated(cls, **kwargs: Any) -> bool:
-        # Without roadmap_seed the roadmap comes from the env's seed: each replica needs its own.
-        return kwargs.get("roadmap_seed") is None
+        # With roadmap_seed=None the roadmap comes from the env's seed: each replica needs its own.
+        return kwargs.get("roadmap_seed", ROADMAP_SEED) is None
 
     def __init__(
         self,
@@ -227,7 +230,7 @@ class PRMOpponent(Opponent):
         avoid_weight: float = AVOID_WEIGHT,
         waypoint_tolerance_m: float = WAYPOINT_TOLERANCE_M,
         predict_horizon_s: float = PREDICT_HORIZON_S,
-        roadmap_seed: int | None = None,
+        roadmap_seed: int | None = ROADMAP_SEED,
     ) -> None:
         super().__init__(env, controlled, ego)
         params, layout = env.params, env.layout
