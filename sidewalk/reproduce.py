@@ -1,0 +1,314 @@
+"""The paper's reproduction: every run of the paper's presets, as one pool of jobs on a few processes.
+
+    python -m sidewalk.reproduce                                   # every preset at the paper's budgets, 2 at a time
+    python -m sidewalk.reproduce quick                             # smoke test: every preset at scale=quick
+    python -m sidewalk.reproduce full --processes 2 --out DIR replicas=5   # overrides go to every job
+    runners/reproduce.sh ...                                       # the same, from the repository root
+
+A *job* is one point of a preset's sweep (``hydra.sweeper.params``): one ``runners/main.py -m`` process, which trains
+the preset's seeds together (``replicas``). Jobs of every preset share one pool of ``--processes`` workers, the
+largest first (iterations × frames per iteration × replicas), so that no worker idles at the end of a preset while
+another preset waits. A job whose config equals an earlier job's is run once (Fig. 8's explicit reward at ε = 0.01 is
+Fig. 6's ε = 0.01 condition); the report groups runs by config, so it finds that condition in either family.
+
+Each job lands in ``OUT/<preset>/<n>_<its sweep point>/`` (a sweep folder per preset, as ``runners/main.py -m`` makes
+it) and logs to ``<that folder>.log``. Run the same command again after a kill: finished jobs are skipped, jobs with a
+checkpoint resume (``resume=true``) and jobs killed before their first checkpoint start over (their folder is moved
+aside). SIGTERM or Ctrl-C stops the running jobs at the end of their iteration with a checkpoint. ``OUT/jobs.csv``
+records each job's start, end, wall-clock and exit status; the report (``OUT/report/report.md``) is written last.
+Exit status: 0 when every job and the report succeeded, 1 otherwise, 2 for bad arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from sidewalk.paths import CONFIG_DIR, RUNNERS_DIR
+from sidewalk.run_folder import CHECKPOINT, GROUP_DIR, PREVIOUS_CHECKPOINT, SUMMARY
+
+PRESETS = ("fig5_discrete", "fig5_continuous", "fig6_discrete", "fig6_continuous", "fig8")
+SCALES = ("full", "quick")
+JOBS_FILE = "jobs.csv"
+
+
+@dataclasses.dataclass(frozen=True)
+class Job:
+    """One process of the reproduction: ``runners/main.py -m`` with ``overrides`` into ``folder`` (relative to the
+    output root); ``size`` orders the pool (largest first) and the rest is what the estimate reads."""
+
+    preset: str
+    folder: str
+    overrides: tuple[str, ...]
+    iterations: int
+    eval_every: int
+    checkpoint_every: int
+    replicas: int
+    seed: int
+    size: int
+    config_key: str = dataclasses.field(compare=False, repr=False)
+
+    @property
+    def point(self) -> str:
+        """The sweep point, e.g. ``noise=0.5``."""
+        return self.folder.split("/", 1)[1].split("_", 1)[1]
+
+
+def compose(overrides: Sequence[str], conf_dir: Path | None = None, hydra_config: bool = False):
+    """The config ``runners/main.py`` would compose from ``overrides`` (from ``conf_dir``, default this checkout's)."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from sidewalk.config import register_schemas
+
+    register_schemas()
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(conf_dir or CONFIG_DIR), version_base="1.3"):
+        return hydra_compose("config", overrides=list(overrides), return_hydra_config=hydra_config)
+
+
+def sweep_points(preset: str, overrides: Sequence[str] = (), conf_dir: Path | None = None) -> list[list[str]]:
+    """The points of a preset's sweep, each a list of overrides, in the order ``runners/main.py -m`` runs them; a
+    key given in ``overrides`` is not swept (the command line wins over the preset's sweep, as in Hydra)."""
+    import itertools
+
+    cfg = compose([f"+experiment={preset}", *_composable(overrides)], conf_dir, hydra_config=True)
+    given = {override.split("=", 1)[0].lstrip("+~") for override in overrides}
+    params = {key: str(value).split(",") for key, value in cfg.hydra.sweeper.params.items() if key not in given}
+    return [[f"{name}={value}" for name, value in zip(params, values)] for values in itertools.product(*params.values())]
+
+
+def jobs(
+    presets: Sequence[str] = PRESETS, scale: str = "full", overrides: Sequence[str] = (), conf_dir: Path | None = None
+) -> list[Job]:
+    """Every job of ``presets`` at ``scale`` with ``overrides``, each config once, largest first."""
+    from omegaconf import OmegaConf
+
+    found: dict[str, Job] = {}
+    for preset in presets:
+        for number, point in enumerate(sweep_points(preset, [f"scale={scale}", *overrides], conf_dir)):
+            job_overrides = (f"+experiment={preset}", *point, f"scale={scale}", *overrides)
+            cfg = compose(_composable(job_overrides), conf_dir)
+            config = OmegaConf.to_container(cfg, resolve=True)
+            key = json.dumps(config, sort_keys=True, default=str)
+            if any(job.config_key == key for job in found.values()):
+                continue
+            frames = int(cfg.algo.frames_per_batch)
+            job = Job(preset, f"{preset}/{number}_{','.join(point) or 'preset'}", job_overrides, int(cfg.iterations),
+                      int(cfg.eval_every), int(cfg.checkpoint_every), int(cfg.replicas), int(cfg.seed),
+                      int(cfg.iterations) * frames * int(cfg.replicas), key)
+            found[job.folder] = job
+    return sorted(found.values(), key=lambda job: -job.size)  # stable: presets' order among equals
+
+
+def _composable(overrides: Sequence[str]) -> list[str]:
+    """The overrides that shape a run's config (Hydra's own settings, such as its launcher, do not)."""
+    return [override for override in overrides if not override.lstrip("+~").startswith("hydra")]
+
+
+# ---- a job's folder ---------------------------------------------------------------------------------------------------
+
+
+def job_state(folder: Path, job: Job) -> str:
+    """``new`` (nothing there), ``done`` (every seed's summary, no checkpoint left), ``resume`` (a checkpoint), or
+    ``stale`` (started, killed before its first checkpoint)."""
+    if not folder.exists():
+        return "new"
+    state_dir = folder / GROUP_DIR if job.replicas > 1 else folder
+    if any((state_dir / name).exists() for name in (CHECKPOINT, PREVIOUS_CHECKPOINT)):
+        return "resume"
+    replica_dirs = [folder / f"seed{job.seed + r}" for r in range(job.replicas)] if job.replicas > 1 else [folder]
+    if all((replica / SUMMARY).exists() for replica in replica_dirs):
+        return "done"
+    return "stale"
+
+
+def command(job: Job, root: Path, resume: bool) -> list[str]:
+    preset_dir, subdir = (root / job.folder).parent, (root / job.folder).name
+    return [sys.executable, str(RUNNERS_DIR / "main.py"), "-m", *job.overrides, f"hydra.sweep.dir={preset_dir}",
+            f"hydra.sweep.subdir='{subdir}'", *(["resume=true"] if resume else [])]
+
+
+# ---- the pool -----------------------------------------------------------------------------------------------------
+
+
+class Pool:
+    """Runs jobs ``processes`` at a time, largest first; forwards SIGTERM and Ctrl-C to the running jobs (which
+    checkpoint and stop) and starts no more."""
+
+    def __init__(self, root: Path, processes: int) -> None:
+        self.root, self.processes = root, processes
+        self.lock = threading.Lock()
+        self.running: dict[str, subprocess.Popen] = {}
+        self.stopping = False
+        self.rows: list[dict[str, Any]] = []
+
+    def run(self, queue: list[Job]) -> list[dict[str, Any]]:
+        pending = list(queue)
+        previous = {sig: signal.signal(sig, self._stop) for sig in (signal.SIGTERM, signal.SIGINT)}
+        try:
+            workers = [threading.Thread(target=self._worker, args=(pending, len(queue))) for _ in range(self.processes)]
+            for worker in workers:
+                worker.start()
+            for worker in workers:
+                while worker.is_alive():
+                    worker.join(0.5)
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+        return self.rows
+
+    def _stop(self, signum: int, frame: Any) -> None:
+        with self.lock:
+            self.stopping = True
+            for process in self.running.values():
+                process.send_signal(signal.SIGTERM)  # the job checkpoints at the end of its iteration
+        self._say(f"{signal.Signals(signum).name}: the running jobs checkpoint and stop; run the same command again "
+                  "to continue")
+
+    def _worker(self, pending: list[Job], total: int) -> None:
+        while True:
+            with self.lock:
+                if self.stopping or not pending:
+                    return
+                job = pending.pop(0)
+                number = total - len(pending)
+            self._run_job(job, f"[{number}/{total}] {job.folder}")
+
+    def _say(self, line: str) -> None:
+        sys.stderr.write(f"reproduce: {line}\n")  # one write: lines of two workers never interleave
+        sys.stderr.flush()
+
+    def _run_job(self, job: Job, name: str) -> None:
+        folder = self.root / job.folder
+        state = job_state(folder, job)
+        row = {"preset": job.preset, "job": job.folder, "state": state, "started": _now(), "ended": "", "wall_s": 0.0,
+               "exit": 0}
+        if state == "done":
+            self._say(f"{name}: already done")
+            self._record({**row, "ended": row["started"]})
+            return
+        if state == "stale":
+            folder.rename(folder.with_name(f"{folder.name}.abandoned-{time.strftime('%Y%m%d-%H%M%S')}"))
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        argv = command(job, self.root, resume=state == "resume")
+        log = folder.with_name(folder.name + ".log")
+        self._say(f"{name}: {'resumed' if state == 'resume' else 'started'} ({job.replicas} seed(s) x {job.iterations} "
+                  f"iterations; log {log})")
+        started = time.perf_counter()
+        with open(log, "a") as out:
+            out.write(f"$ {shlex.join(argv)}\n")
+            out.flush()
+            with self.lock:
+                if self.stopping:
+                    return
+                process = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, cwd=RUNNERS_DIR.parent,
+                                           start_new_session=True)  # Ctrl-C reaches it once, through _stop
+                self.running[job.folder] = process
+            code = process.wait()
+            with self.lock:
+                del self.running[job.folder]
+        wall = time.perf_counter() - started
+        outcome = "done" if code == 0 else f"stopped (exit {code}; run again to resume)" if code > 128 else \
+            f"FAILED (exit {code}; see {log})"
+        self._say(f"{name}: {outcome} in {wall:.0f} s")
+        self._record({**row, "ended": _now(), "wall_s": round(wall, 1), "exit": code})
+
+    def _record(self, row: dict[str, Any]) -> None:
+        import pandas as pd
+
+        from sidewalk.run_folder import atomic_write
+
+        with self.lock:
+            self.rows.append(row)
+            path = self.root / JOBS_FILE
+            earlier = pd.read_csv(path) if path.exists() and path.stat().st_size else pd.DataFrame()
+            table = pd.concat([earlier, pd.DataFrame([row])], ignore_index=True)
+            atomic_write(path, lambda tmp: table.to_csv(tmp, index=False))
+
+
+def _now() -> str:
+    return datetime.datetime.now().astimezone().isoformat(timespec="seconds")
+
+
+def parse_options(argv: Sequence[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="runners/reproduce.sh", description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="\n".join(__doc__.splitlines()[2:]))
+    parser.add_argument("scale", nargs="?", default="full", help=f"one of {', '.join(SCALES)} (default: full)")
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides given to every job (e.g. replicas=5)")
+    parser.add_argument("--processes", type=int, default=2, help="jobs at a time (default: 2)")
+    parser.add_argument("--out", help="output root (default: $REPRODUCE_DIR, else "
+                                      "results/sweeps/reproduce_<scale>_<time>)")
+    parser.add_argument("--presets", nargs="+", default=list(PRESETS), metavar="PRESET",
+                        help=f"presets to run (default: {' '.join(PRESETS)})")
+    parser.add_argument("--list", action="store_true", help="print the jobs in the pool's order and exit")
+    args = parser.parse_args(argv)
+    if args.scale not in SCALES:
+        # An override in the scale's place (replicas=5) means the default scale.
+        if "=" in args.scale:
+            args.overrides.insert(0, args.scale)
+            args.scale = "full"
+        else:
+            parser.error(f"scale {args.scale!r}: choose one of {', '.join(SCALES)}")
+    if args.processes < 1:
+        parser.error(f"--processes {args.processes}: must be at least 1")
+    known = sorted(path.stem for path in (CONFIG_DIR / "experiment").glob("*.yaml"))
+    for preset in args.presets:
+        if preset not in known:
+            parser.error(f"--presets {preset}: not a preset of conf/experiment/ (presets: {', '.join(known)})")
+    for override in args.overrides:
+        if override.startswith("hydra.sweep.dir=") or override.startswith("hydra/launcher="):
+            parser.error(f"{override}: the pool places and launches the jobs itself (use --out and --processes)")
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parse_options(sys.argv[1:] if argv is None else argv)
+    try:
+        queue = jobs(args.presets, args.scale, args.overrides)
+    except Exception as error:  # a config Hydra cannot compose: one line, before any compute
+        print(f"error: {str(error).splitlines()[0]}", file=sys.stderr)
+        return 2
+    if args.list:
+        for job in queue:
+            print(f"{job.folder}\t{shlex.join(job.overrides)}")
+        return 0
+    default = f"results/sweeps/reproduce_{args.scale}_{time.strftime('%Y-%m-%d_%H-%M-%S')}"
+    root = Path(args.out or os.environ.get("REPRODUCE_DIR") or default).resolve()
+    root.mkdir(parents=True, exist_ok=True)
+    print(f"reproduce: {len(queue)} jobs, {args.processes} at a time, into {root}", file=sys.stderr, flush=True)
+    started = time.perf_counter()
+    rows = Pool(root, args.processes).run(queue)
+    failed = [row["job"] for row in rows if row["exit"] not in (0,)]
+    unfinished = len(queue) - len(rows)
+    print(f"reproduce: jobs took {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
+    if unfinished or any(row["exit"] > 128 for row in rows):
+        print(f"reproduce: stopped with {unfinished} job(s) not started; run the same command again to continue",
+              file=sys.stderr)
+        return 1
+    report = subprocess.run([sys.executable, str(RUNNERS_DIR / "report.py"), str(root), "--out", str(root / "report")],
+                            check=False)
+    if failed or report.returncode:
+        print(f"reproduce: failed: {' '.join(failed + (['report'] if report.returncode else []))} (see the jobs' "
+              f"logs and {root / 'report' / 'report.md'})", file=sys.stderr)
+        return 1
+    print(f"reproduce: done: {root / 'report' / 'report.md'}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
