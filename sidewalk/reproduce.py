@@ -256,7 +256,7 @@ def parse_options(argv: Sequence[str]) -> argparse.Namespace:
     parser.add_argument("--presets", nargs="+", default=list(PRESETS), metavar="PRESET",
                         help=f"presets to run (default: {' '.join(PRESETS)})")
     parser.add_argument("--list", action="store_true", help="print the jobs in the pool's order and exit")
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)  # overrides may follow the options
     if args.scale not in SCALES:
         # An override in the scale's place (replicas=5) means the default scale.
         if "=" in args.scale:
