@@ -14,6 +14,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 COMMANDS = ("sidewalk-train", "sidewalk-report", "sidewalk-render", "sidewalk-crossplay", "sidewalk-baselines",
             "sidewalk-bench")
+PURELIB = "import sysconfig; print(sysconfig.get_paths()['purelib'])"  # a venv's own site-packages
 
 
 @pytest.fixture(scope="module")
@@ -27,15 +28,56 @@ def wheel(tmp_path_factory) -> Path:
     return built
 
 
+def running_site_packages() -> list[str]:
+    """The folders the running interpreter imports installed packages from: a venv's, a conda env's or the base
+    interpreter's, whichever runs the tests."""
+    return [path for path in sys.path if path and Path(path).name in ("site-packages", "dist-packages")
+            and Path(path).is_dir()]
+
+
+def fresh_venv(env_dir: Path) -> Path:
+    """A new virtual environment whose imports fall back on the *running* environment's packages (a ``.pth`` file
+    naming them, after its own), so that what it installs shadows them. ``system_site_packages=True`` would hand it
+    the base interpreter's packages instead, which lack torch when the tests run in a venv. Returns its python."""
+    venv.create(env_dir, system_site_packages=False, with_pip=False)
+    python = env_dir / "bin" / "python"
+    own = subprocess.run([str(python), "-c", PURELIB], capture_output=True, text=True, check=True).stdout.strip()
+    # Plain path lines: the running environment's own .pth files (an editable install of the clone) are not run.
+    (Path(own) / "running-environment.pth").write_text("".join(f"{path}\n" for path in running_site_packages()))
+    return python
+
+
 @pytest.fixture(scope="module")
 def installed(wheel, tmp_path_factory) -> Path:
     """A fresh virtual environment with the wheel; its dependencies come from the running environment."""
-    env_dir = tmp_path_factory.mktemp("venv")
-    venv.create(env_dir, system_site_packages=True, with_pip=False)
-    python = env_dir / "bin" / "python"
+    python = fresh_venv(tmp_path_factory.mktemp("venv"))
     subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "--no-deps", "-q", str(wheel)],
                    check=True, capture_output=True, text=True, timeout=300)
-    return env_dir / "bin"
+    return python.parent
+
+
+def test_a_fresh_venv_sees_the_running_environment_not_the_base_interpreter(tmp_path):
+    """Run from a venv of its own (as a user runs the suite), ``fresh_venv`` still hands its venv that venv's packages:
+    the check that the venv bug cannot come back where the suite runs in the base interpreter (as CI does)."""
+    outer = tmp_path / "user-venv"
+    venv.create(outer, system_site_packages=False, with_pip=False)
+    outer_python = outer / "bin" / "python"
+    # The user's venv holds the running environment's packages, and a marker module the base interpreter lacks.
+    outer_site = Path(subprocess.run([str(outer_python), "-c", PURELIB], capture_output=True, text=True,
+                                     check=True).stdout.strip())
+    (outer_site / "running.pth").write_text("".join(f"{path}\n" for path in running_site_packages()))
+    (outer_site / "only_in_the_users_venv.py").write_text("")
+    inner = tmp_path / "inner"
+    script = (f"import sys; sys.path.insert(0, {str(Path(__file__).parent)!r}); from pathlib import Path; "
+              f"from test_packaging import fresh_venv; print(fresh_venv(Path({str(inner)!r})))")
+    made = subprocess.run([str(outer_python), "-c", script], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": ""})
+    assert made.returncode == 0, made.stderr[-3000:]
+    probe = "import only_in_the_users_venv, torch; print('ok')"
+    seen = subprocess.run([made.stdout.strip(), "-c", probe], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": ""})
+    assert seen.stdout.strip() == "ok", seen.stderr[-3000:]
+    assert "include-system-site-packages = false" in (inner / "pyvenv.cfg").read_text()
 
 
 def test_the_wheel_carries_every_config_and_runner(wheel):
