@@ -37,6 +37,8 @@ SETUPS = {
     "trpo-continuous-roadmap-per-seed": [*TRPO_CONTINUOUS, "opponent.params.roadmap_seed=null"],  # a PRM per replica
     "ppo-continuous-random": ["env=continuous", "opponent=random", "algo=ppo", "num_envs=8",
                               "algo.frames_per_batch=64", "algo.minibatch_size=32", "noise=0.5"],
+    "ppo-lagrangian-continuous": ["env=continuous", "opponent=prm", "algo=ppo_lagrangian", "num_envs=8",
+                                  "algo.frames_per_batch=64", "algo.minibatch_size=32", "noise=0.5"],
     "centralized-dqn": ["opponent=centralized", *DQN_GRID],
     "iql-selfplay": ["+experiment=selfplay_discrete", "num_envs=4", "algo.frames_per_batch=16",
                      "algo.batch_size=16", "algo.learning_starts=0"],

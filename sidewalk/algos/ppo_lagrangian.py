@@ -171,7 +171,9 @@ class PPOLagrangian(PPO):
         # One Adam and one gradient clip over policy and both critics, as PPO has for policy and critic.
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr, foreach=True)
         self.lagrange = Lagrange(cfg.cost_limit, cfg.lambda_init, cfg.lambda_lr, cfg.lambda_upper_bound).to(self.device)
-        self.running_episode_cost = torch.zeros(env.batch_size, device=self.device)  # per world, since its last reset
+        # Per world, since its last reset; sized by the first batch: the learner's own worlds, a replica's block of a
+        # group's env (replicas=R) or the whole env alone.
+        self.running_episode_cost: torch.Tensor | None = None
         self.episode_cost = math.nan  # J_c: none until an episode ends
 
     @property
@@ -197,12 +199,14 @@ class PPOLagrangian(PPO):
     def finished_episode_costs(self, batch: TensorDictBase) -> torch.Tensor:
         """The whole cost of every episode that ended in ``batch`` (worlds, time), in order of ending step; the cost
         of an episode still running carries over to the next batch."""
-        cost = batch.get(("next", COST)).squeeze(-1).to(self.running_episode_cost)
+        cost = batch.get(("next", COST)).squeeze(-1).to(self.device, torch.float32)
         done = batch.get(("next", "done")).squeeze(-1).to(self.device)
+        if self.running_episode_cost is None:
+            self.running_episode_cost = torch.zeros(cost.shape[:-1], device=self.device)
         if cost.shape[:-1] != self.running_episode_cost.shape:
             raise ValueError(
                 f"a batch of {tuple(cost.shape[:-1])} worlds × {cost.shape[-1]} steps, but this learner keeps the "
-                f"running episode cost of {tuple(self.running_episode_cost.shape)} worlds (its env's batch size)"
+                f"running episode cost of {tuple(self.running_episode_cost.shape)} worlds (its first batch's)"
             )
         running, finished = self.running_episode_cost, []
         for t in range(cost.shape[-1]):
@@ -234,11 +238,12 @@ class PPOLagrangian(PPO):
     def state_dict(self) -> dict[str, Any]:
         return {
             **super().state_dict(),
-            "running_episode_cost": self.running_episode_cost.clone(),
+            "running_episode_cost": None if self.running_episode_cost is None else self.running_episode_cost.clone(),
             "episode_cost": self.episode_cost,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         super().load_state_dict(state)
-        self.running_episode_cost = state["running_episode_cost"].to(self.device).clone()
+        held = state["running_episode_cost"]
+        self.running_episode_cost = None if held is None else held.to(self.device).clone()
         self.episode_cost = state["episode_cost"]
