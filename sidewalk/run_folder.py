@@ -39,12 +39,21 @@ CHECKPOINT = "checkpoint.pt"
 PREVIOUS_CHECKPOINT = "checkpoint.prev.pt"
 POLICY = "policy.pt"
 METRICS = "metrics.csv"
+# A committed reference run's metrics (sidewalk.reference collect): compressed, float32 precision, read like METRICS.
+METRICS_COMPRESSED = "metrics.csv.xz"
 SUMMARY = "summary.json"
 LOCK = ".writer.lock"
 # In a folder of replicas trained together (replicas=R, sidewalk.group): the group's own config, history and checkpoint.
 GROUP_DIR = ".group"
 # Keys a resume may change: the flag itself and what is kept after the run, neither of which changes a number.
 RESUME_MAY_CHANGE = ("resume", "keep_checkpoint")
+
+
+def write_compressed_metrics(metrics: Any, folder: Path) -> None:
+    """Write a metrics table (a pandas DataFrame) as ``METRICS_COMPRESSED``: nine significant digits keep every
+    float32 value, xz keeps a 5000-iteration run to a few hundred kilobytes."""
+    atomic_write(Path(folder) / METRICS_COMPRESSED,
+                 lambda tmp: metrics.to_csv(tmp, index=False, float_format="%.9g", compression="xz"))
 
 
 class RunFolderError(RuntimeError):

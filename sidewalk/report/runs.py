@@ -3,7 +3,9 @@ why it cannot be used (a failed job, a missing, empty, truncated or unreadable f
 
 from __future__ import annotations
 
+import io
 import json
+import lzma
 import math
 import os
 from collections.abc import Iterable
@@ -14,11 +16,20 @@ from typing import Any
 import pandas as pd
 from omegaconf import OmegaConf
 
-from sidewalk.run_folder import CHECKPOINT, CONFIG, GROUP_DIR, METRICS, POLICY, SUMMARY, policy_file  # noqa: F401
+from sidewalk.run_folder import (  # noqa: F401
+    CHECKPOINT,
+    CONFIG,
+    GROUP_DIR,
+    METRICS,
+    METRICS_COMPRESSED,
+    POLICY,
+    SUMMARY,
+    policy_file,
+)
 
 ERROR = "error.txt"
 # A folder holding any of these is a run folder, complete or not (".hydra" alone: a job killed while starting).
-RUN_MARKERS = (CONFIG, METRICS, SUMMARY, CHECKPOINT, POLICY, ERROR, ".hydra")
+RUN_MARKERS = (CONFIG, METRICS, METRICS_COMPRESSED, SUMMARY, CHECKPOINT, POLICY, ERROR, ".hydra")
 POLICY_FILES = f"{POLICY} or {CHECKPOINT}"
 
 
@@ -103,15 +114,22 @@ def read_metrics(path: Path) -> pd.DataFrame:
     ``Trial`` writes the file atomically, so a file that fails these checks was copied or written by something
     else half-way; it raises ``RunFolderError`` naming what is wrong.
     """
-    if not path.exists():
+    compressed = path.with_name(METRICS_COMPRESSED)
+    if not path.exists() and compressed.exists():  # a committed reference run (sidewalk.reference collect)
+        try:
+            raw = lzma.decompress(compressed.read_bytes())
+        except lzma.LZMAError as error:
+            raise RunFolderError(f"{METRICS_COMPRESSED} is unreadable: {error}") from error
+    elif not path.exists():
         raise RunFolderError(f"no {METRICS}")
-    raw = path.read_bytes()
+    else:
+        raw = path.read_bytes()
     if not raw.strip():
         raise RunFolderError(f"{METRICS} is empty")
     if not raw.endswith(b"\n"):
         raise RunFolderError(f"{METRICS} is truncated (its last line is incomplete)")
     try:
-        frame = pd.read_csv(path)
+        frame = pd.read_csv(io.BytesIO(raw))
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as error:
         raise RunFolderError(f"{METRICS} is unreadable: {str(error).strip()}") from error
     missing = [column for column in ("iteration", "frames", "time_s") if column not in frame.columns]

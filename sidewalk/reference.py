@@ -1,0 +1,266 @@
+"""The committed reference results, and whether today's code still makes them.
+
+A reference folder (``results/reference/``, ``results/reference/safe/``) holds ``reference.json``: the commit its runs
+were made at, the command, every job it ran (its Hydra overrides) and any note that explains a probe difference. Its
+*probe* (``probe.csv``) is a short deterministic run of every job (seed 0 alone, a few iterations, one evaluation)
+made at that commit. ``check`` runs the same probe with today's code and compares it metric by metric (wall clock
+aside): equal, the reference is still what today's code makes; different, a change since its commit alters what a
+job computes, and the reference must be re-made (or a note in ``reference.json`` must say why it still holds).
+
+    python -m sidewalk.reference check                      # every reference folder; exit 1 on an unexplained change
+    python -m sidewalk.reference check --write-status       # ... and rewrite results/reference/freshness.md
+    python -m sidewalk.reference probe results/reference    # record the probe (run it at the reference's commit)
+    python -m sidewalk.reference collect SWEEP_ROOT results/reference/runs   # the runs' small files, for the report
+
+``collect`` copies what ``runners/report.py`` reads of each finished run (``config.yaml``, ``summary.json``,
+``history.jsonl``, the metrics as ``metrics.csv.xz`` without the learners' diagnostics) and each sweep's
+``multirun.yaml``, so that the report is rebuilt from committed files alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import sys
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from sidewalk.paths import PACKAGE_DIR
+
+REFERENCE_ROOT = PACKAGE_DIR.parent / "results" / "reference"
+FOLDERS = ("", "safe")  # the reference folders with a probe, under REFERENCE_ROOT
+META = "reference.json"
+PROBE = "probe.csv"
+STATUS = "freshness.md"
+WALL_CLOCK = ("time_s", "frames_per_s")
+# A probe: seed 0 alone, one evaluation of 16 episodes at its end, no checkpoint, nothing logged.
+PROBE_OVERRIDES = ("seed=0", "replicas=1", "eval_episodes=16", "checkpoint_every=0", "logger=none")
+PROBE_ITERATIONS = 2  # after an off-policy learner's first update (learning_starts)
+# Values that differ by less than this (relative) are the same number rounded by another CPU's kernels.
+ROUNDING = 1e-6
+KEPT_TRAIN = ("success", "collision", "return", "cost", "episodes", "shield", "length")
+
+
+# ---- the probe -----------------------------------------------------------------------------------------------------
+
+
+def probe_overrides(job_overrides: Sequence[str]) -> list[str]:
+    """A job's overrides made into its probe's: the job's config, seed 0 alone, a few iterations (past an off-policy
+    learner's ``learning_starts``), one evaluation at the end."""
+    from sidewalk.reproduce import compose
+
+    cfg = compose([*job_overrides, *PROBE_OVERRIDES])
+    starts = int(cfg.algo.get("learning_starts", 0) or 0)
+    per_iteration = math.ceil(int(cfg.algo.frames_per_batch) / int(cfg.num_envs)) * int(cfg.num_envs)
+    iterations = PROBE_ITERATIONS + math.ceil(starts / per_iteration)
+    return [*job_overrides, *PROBE_OVERRIDES, f"iterations={iterations}", f"eval_every={iterations}"]
+
+
+def probe_job(job_overrides: Sequence[str], work_dir: Path) -> pd.DataFrame:
+    """The probe of one job: its metrics, one row per iteration, wall clock dropped."""
+    from sidewalk.config import validate
+    from sidewalk.experiment import Trial
+    from sidewalk.reproduce import compose
+
+    experiment = validate(compose(probe_overrides(job_overrides)))
+    Trial(experiment, work_dir).run(progress=False)
+    metrics = pd.read_csv(work_dir / "metrics.csv")
+    return metrics.drop(columns=[column for column in WALL_CLOCK if column in metrics.columns])
+
+
+def probe(jobs: dict[str, Sequence[str]], progress: bool = True) -> pd.DataFrame:
+    """Every job's probe, as one table with a ``job`` column."""
+    tables = []
+    with tempfile.TemporaryDirectory(prefix="sidewalk-probe-") as tmp:
+        for number, (name, overrides) in enumerate(jobs.items()):
+            if progress:
+                print(f"probe: {name}", file=sys.stderr, flush=True)
+            tables.append(probe_job(overrides, Path(tmp) / str(number)).assign(job=name))
+    table = pd.concat(tables, ignore_index=True)
+    return table[["job", *[column for column in table.columns if column != "job"]]]
+
+
+@dataclass
+class Comparison:
+    """One job's probe today against the recorded one: ``same`` (bit for bit or within ``ROUNDING``), with what
+    differs first where not."""
+
+    job: str
+    same: bool
+    detail: str
+
+
+def compare(recorded: pd.DataFrame, today: pd.DataFrame) -> list[Comparison]:
+    """Each recorded job's probe against today's."""
+    results = []
+    for job, old in recorded.groupby("job", sort=False):
+        new = today[today["job"] == job]
+        results.append(Comparison(job, *_compare_tables(old.drop(columns="job"), new.drop(columns="job"))))
+    return results
+
+
+def _compare_tables(old: pd.DataFrame, new: pd.DataFrame) -> tuple[bool, str]:
+    old, new = old.dropna(axis=1, how="all").reset_index(drop=True), new.dropna(axis=1, how="all").reset_index(drop=True)
+    if set(old.columns) != set(new.columns):
+        gone, added = sorted(set(old.columns) - set(new.columns)), sorted(set(new.columns) - set(old.columns))
+        return False, f"its metrics differ: no longer written {gone or '-'}, new {added or '-'}"
+    if len(old) != len(new):
+        return False, f"{len(new)} iterations where the probe recorded {len(old)}"
+    worst = (0.0, "", 0, 0.0, 0.0)
+    for column in old.columns:
+        a, b = old[column].to_numpy(dtype=float), new[column].to_numpy(dtype=float)
+        for row, (x, y) in enumerate(zip(a, b)):
+            if (math.isnan(x) and math.isnan(y)) or x == y:
+                continue
+            gap = math.inf if math.isnan(x) or math.isnan(y) else abs(x - y) / max(abs(x), abs(y), 1e-12)
+            if gap > worst[0]:
+                worst = (gap, column, row + 1, x, y)
+    gap, column, iteration, x, y = worst
+    if gap == 0.0:
+        return True, "identical"
+    if gap <= ROUNDING:
+        return True, f"equal within rounding (largest relative difference {gap:.1e}, {column})"
+    return False, f"{column} at iteration {iteration}: recorded {x:.6g}, today {y:.6g}"
+
+
+# ---- reference folders ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Reference:
+    """A reference folder and its ``reference.json``."""
+
+    folder: Path
+    meta: dict[str, Any]
+
+    @classmethod
+    def load(cls, folder: Path) -> Reference:
+        return cls(Path(folder), json.loads((Path(folder) / META).read_text()))
+
+    @property
+    def name(self) -> str:
+        return str(self.folder.relative_to(REFERENCE_ROOT.parent.parent)) if self.folder.is_relative_to(
+            REFERENCE_ROOT.parent.parent) else str(self.folder)
+
+    @property
+    def jobs(self) -> dict[str, list[str]]:
+        return self.meta["jobs"]
+
+    def recorded_probe(self) -> pd.DataFrame:
+        path = self.folder / PROBE
+        if not path.exists():
+            raise FileNotFoundError(f"{path} does not exist: record it with python -m sidewalk.reference probe "
+                                    f"{self.folder} (at commit {self.meta['commit'][:7]})")
+        return pd.read_csv(path)
+
+    def check(self, progress: bool = True) -> list[Comparison]:
+        """Today's probe of every job against the recorded one; a job whose difference a note explains counts as
+        the same, the note appended."""
+        results = compare(self.recorded_probe(), probe(self.jobs, progress))
+        notes = self.meta.get("explained", {})
+        for result in results:
+            if not result.same and result.job in notes:
+                result.same, result.detail = True, f"differs ({result.detail}), explained: {notes[result.job]}"
+        return results
+
+
+def references(names: Sequence[str] = FOLDERS) -> list[Reference]:
+    return [Reference.load(REFERENCE_ROOT / name) for name in names]
+
+
+def status_table(checked: list[tuple[Reference, list[Comparison]]]) -> str:
+    """The freshness page: per reference folder, its commit and whether today's code gives the same probe."""
+    lines = [
+        "| reference | made at | jobs | today's code gives the same probe |",
+        "| --- | --- | ---: | --- |",
+    ]
+    for reference, results in checked:
+        changed = [result for result in results if not result.same]
+        verdict = "yes" if not changed else "**no**: " + "; ".join(f"`{r.job}`: {r.detail}" for r in changed)
+        lines.append(f"| `{reference.name}/` | commit `{reference.meta['commit'][:7]}` | {len(results)} | {verdict} |")
+    return "\n".join(lines) + "\n"
+
+
+# ---- collecting a sweep's small files -------------------------------------------------------------------------------
+
+
+def collect(sweep_root: Path, destination: Path) -> int:
+    """Copy what the report reads of every finished run under ``sweep_root`` into ``destination`` (same relative
+    paths); returns the number of runs copied."""
+    from sidewalk.report.runs import SWEEP_MARKER, find_run_folders
+    from sidewalk.run_folder import CONFIG, HISTORY, METRICS, SUMMARY, write_compressed_metrics
+
+    sweep_root, destination = Path(sweep_root), Path(destination)
+    copied = 0
+    for run_dir in find_run_folders([sweep_root]):
+        if not (run_dir / SUMMARY).exists():
+            continue
+        target = destination / run_dir.relative_to(sweep_root)
+        target.mkdir(parents=True, exist_ok=True)
+        for name in (CONFIG, SUMMARY, HISTORY):
+            if (run_dir / name).exists():
+                shutil.copy2(run_dir / name, target / name)
+        metrics = pd.read_csv(run_dir / METRICS)
+        kept = [c for c in metrics.columns if not c.startswith("train/") or any(k in c for k in KEPT_TRAIN)]
+        write_compressed_metrics(metrics[kept], target)
+        copied += 1
+    for marker in sweep_root.rglob(SWEEP_MARKER):
+        (destination / marker.relative_to(sweep_root)).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(marker, destination / marker.relative_to(sweep_root))
+    return copied
+
+
+# ---- the command ----------------------------------------------------------------------------------------------------
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m sidewalk.reference", description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="\n".join(__doc__.splitlines()[2:]))
+    commands = parser.add_subparsers(dest="command", required=True)
+    check = commands.add_parser("check", help="today's probe against every reference folder's recorded one")
+    check.add_argument("folders", nargs="*", default=list(FOLDERS), help="under results/reference/ ('' is itself)")
+    check.add_argument("--write-status", action="store_true", help=f"rewrite results/reference/{STATUS}")
+    record = commands.add_parser("probe", help="record a reference folder's probe (at the reference's commit)")
+    record.add_argument("folder")
+    gather = commands.add_parser("collect", help="copy a sweep's small files for the report")
+    gather.add_argument("sweep_root")
+    gather.add_argument("destination")
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    if args.command == "probe":
+        from sidewalk.run_folder import git_revision
+
+        reference = Reference.load(Path(args.folder))
+        probe(reference.jobs).to_csv(reference.folder / PROBE, index=False, float_format="%.17g")
+        reference.meta["probe_made_at"] = git_revision()  # the code that ran it: the reference's commit
+        (reference.folder / META).write_text(json.dumps(reference.meta, indent=2) + "\n")
+        print(f"wrote {reference.folder / PROBE}, made at {reference.meta['probe_made_at']}", file=sys.stderr)
+        return 0
+    if args.command == "collect":
+        print(f"collected {collect(Path(args.sweep_root), Path(args.destination))} run(s) into {args.destination}",
+              file=sys.stderr)
+        return 0
+    checked = [(reference, reference.check()) for reference in references(args.folders)]
+    for reference, results in checked:
+        for result in results:
+            print(f"{reference.name}/ {result.job}: {'same' if result.same else 'CHANGED'} ({result.detail})")
+    if args.write_status:
+        (REFERENCE_ROOT / STATUS).write_text(status_table(checked))
+    changed = [(reference.name, result.job) for reference, results in checked for result in results if not result.same]
+    if changed:
+        print(f"error: today's code no longer makes {len(changed)} reference job(s): "
+              + ", ".join(f"{folder}/ {job}" for folder, job in changed)
+              + " (re-make them, or explain the change in their reference.json)", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

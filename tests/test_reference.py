@@ -1,0 +1,104 @@
+"""The committed reference results say whether today's code still makes them: each reference folder's probe was
+recorded at its commit, today's code gives the same probe for every job (else this fails, naming the job), the
+freshness page says so, and a change to what a job computes is caught."""
+
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+import pytest
+
+from sidewalk.reference import (
+    FOLDERS,
+    META,
+    PROBE,
+    REFERENCE_ROOT,
+    STATUS,
+    Reference,
+    collect,
+    compare,
+    probe,
+    references,
+    status_table,
+)
+from sidewalk.report.runs import load_run
+
+JOBS = [(folder, job) for folder in FOLDERS for job in Reference.load(REFERENCE_ROOT / folder).jobs]
+
+
+@pytest.mark.parametrize("folder", FOLDERS)
+def test_each_reference_records_its_commit_and_a_probe_made_there(folder):
+    reference = Reference.load(REFERENCE_ROOT / folder)
+    assert len(reference.meta["commit"]) == 40
+    assert reference.meta.get("probe_made_at") == reference.meta["commit"], "record the probe at the commit"
+    recorded = reference.recorded_probe()
+    assert list(dict.fromkeys(recorded["job"])) == list(reference.jobs)
+
+
+@pytest.mark.parametrize("folder, job", JOBS, ids=[f"{folder or 'paper'}:{job}" for folder, job in JOBS])
+def test_todays_code_makes_the_reference(folder, job):
+    """A failure names the job and the first metric that moved: re-make that reference (its run.sh), or say in its
+    reference.json ("explained") why the change leaves its numbers true."""
+    reference = Reference.load(REFERENCE_ROOT / folder)
+    recorded = reference.recorded_probe()
+    (result,) = compare(recorded[recorded["job"] == job], probe({job: reference.jobs[job]}, progress=False))
+    explained = reference.meta.get("explained", {}).get(job)
+    assert result.same or explained, f"{reference.name}/ {job}: today's code changed its probe: {result.detail}"
+
+
+def test_the_freshness_page_says_what_the_probes_say():
+    page = (REFERENCE_ROOT / STATUS).read_text()
+    for reference in references():
+        (row,) = [line for line in page.splitlines() if line.startswith(f"| `{reference.name}/`")]
+        assert f"commit `{reference.meta['commit'][:7]}`" in row
+        # The probes are checked job by job above; a folder's "yes" is true when each of its jobs passes there.
+        assert row.rstrip(" |").endswith("yes"), f"{STATUS} says {row!r}: re-run python -m sidewalk.reference check " \
+                                                 "--write-status"
+
+
+def test_a_change_in_what_a_job_computes_is_caught_and_named():
+    recorded = pd.DataFrame({"job": ["a", "a", "b"], "iteration": [1, 2, 1], "eval/ego/return": [0.5, 0.7, 0.1]})
+    today = recorded.copy()
+    assert [r.same for r in compare(recorded, today)] == [True, True]
+    today.loc[1, "eval/ego/return"] = 0.7 * (1 + 1e-9)  # another CPU's rounding
+    assert compare(recorded, today)[0].detail.startswith("equal within rounding")
+    today.loc[1, "eval/ego/return"] = 0.8  # a reward constant changed
+    changed = compare(recorded, today)[0]
+    assert not changed.same and changed.detail == "eval/ego/return at iteration 2: recorded 0.7, today 0.8"
+    assert "no longer written" in compare(recorded, today.drop(columns="eval/ego/return"))[0].detail
+    table = status_table([(Reference(REFERENCE_ROOT, {"commit": "0" * 40}), [changed])])
+    assert "**no**: `a`: eval/ego/return" in table
+
+
+def test_collected_runs_read_back_as_the_runs(tmp_path):
+    """The committed small files of a run (metrics compressed at float32 precision) give the report what the run
+    folder gives it."""
+    from sidewalk.config import validate
+    from sidewalk.experiment import Trial
+    from sidewalk.reproduce import compose
+
+    sweep = tmp_path / "sweeps" / "fig0"  # a sweep folder (multirun.yaml) in the root that is collected
+    overrides = ["iterations=3", "eval_every=3", "eval_episodes=4", "num_envs=4", "logger=none", "checkpoint_every=0"]
+    cfg = compose(overrides)
+    from omegaconf import OmegaConf
+
+    Trial(validate(cfg), sweep / "job" / "seed0", OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
+    (sweep / "multirun.yaml").write_text("{}\n")
+    assert collect(sweep.parent, tmp_path / "runs") == 1
+    copied = tmp_path / "runs" / "fig0" / "job" / "seed0"
+    assert sorted(p.name for p in copied.iterdir()) == ["config.yaml", "history.jsonl", "metrics.csv.xz",
+                                                        "summary.json"]
+    original, kept = load_run(sweep / "job" / "seed0"), load_run(copied)
+    assert kept.family == original.family == "fig0" and kept.summary == original.summary
+    diagnostics = [c for c in original.metrics.columns if c not in kept.metrics.columns]
+    assert all(c.startswith("train/") for c in diagnostics)
+    pd.testing.assert_frame_equal(kept.metrics, original.metrics.drop(columns=diagnostics), check_exact=False,
+                                  check_dtype=False, rtol=1e-7)
+
+
+def test_a_reference_json_names_every_job_it_ran():
+    for folder in FOLDERS:
+        meta = json.loads((REFERENCE_ROOT / folder / META).read_text())
+        assert meta["jobs"] and all(overrides[0].startswith("+experiment=") for overrides in meta["jobs"].values())
+        assert (REFERENCE_ROOT / folder / PROBE).exists()
