@@ -6,7 +6,17 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from sidewalk.bench.reproduce import WARMUP, costs_from_metrics, makespan, presets, run_seconds, sweep
+from sidewalk.bench.common import REPO_ROOT
+from sidewalk.bench.reproduce import (
+    POOL,
+    WARMUP,
+    costs_from_metrics,
+    in_order,
+    makespan,
+    revision_jobs,
+    run_seconds,
+    sweep,
+)
 
 
 def test_probe_costs_are_read_apart_from_metrics_csv():
@@ -31,13 +41,26 @@ def test_runs_are_packed_longest_first_onto_the_workers():
     assert makespan([3.0, 3.0, 2.0, 2.0, 2.0], 2) == 7.0  # greedy, as a launcher hands out jobs: 3+2+2 | 3+2
     assert makespan([5.0, 1.0], 1) == 6.0
     assert makespan([4.0], 3) == 4.0
+    assert in_order([1.0, 5.0, 2.0], 2) == 5.0  # the pool's order, not the longest first: 1+2 | 5
+    assert in_order([1.0, 1.0, 5.0], 2) == 6.0
 
 
-def test_the_estimate_prices_every_run_of_reproduce_sh():
-    names = presets()
-    assert names == ["fig5_discrete", "fig5_continuous", "fig6_discrete", "fig6_continuous", "fig8"]
+def test_the_estimate_prices_every_job_of_the_pool():
+    model, jobs = revision_jobs(REPO_ROOT)
+    assert model == POOL
+    presets = list(dict.fromkeys(job["preset"] for job in jobs))
+    assert sorted(presets) == ["fig5_continuous", "fig5_discrete", "fig6_continuous", "fig6_discrete", "fig8"]
+    assert len(jobs) == 13  # 5 presets x 3 points, Fig. 8's explicit reward once (it is Fig. 6's noise 0.01)
+    fig5 = [job for job in jobs if job["preset"] == "fig5_discrete"]
+    assert [job["overrides"][1] for job in fig5] == ["opponent=random", "opponent=dijkstra", "opponent=centralized"]
+    assert all(job["replicas"] == 3 for job in jobs)  # each job trains seeds 0, 1, 2 in one process
+    assert (fig5[0]["iterations"], fig5[0]["eval_every"], fig5[0]["checkpoint_every"]) == (5000, 50, 50)
+    assert all(job["iterations"] == 5000 for job in jobs if "continuous" in job["preset"] or job["preset"] == "fig8")
+    sizes = [job["size"] for job in jobs]
+    assert sizes == sorted(sizes, reverse=True)  # the largest first
+
+
+def test_a_preset_sweep_expands_as_hydra_would():
     fig5 = sweep("fig5_discrete")
     assert fig5["runs"] == [["opponent=random"], ["opponent=dijkstra"], ["opponent=centralized"]]
-    assert fig5["replicas"] == 3  # each job trains seeds 0, 1, 2 in one process
-    assert (fig5["iterations"], fig5["eval_every"], fig5["checkpoint_every"]) == (5000, 50, 50)
-    assert sweep("fig6_continuous")["iterations"] == 5000  # the paper's continuous budget, not the reference's 500
+    assert (fig5["replicas"], fig5["iterations"]) == (3, 5000)

@@ -17,8 +17,9 @@ its ``metrics.csv`` times per iteration read apart into
 - ``fixed s``: the process's wall-clock outside the training loop (imports, config, final policy, plots).
 
 A run of ``iterations`` then costs fixed + iterations × ms/iteration + its evaluations and checkpoints at the
-preset's periods; each preset's runs are packed onto ``--processes`` workers longest first (as Hydra's joblib
-launcher would run them with ``hydra.launcher.n_jobs``) and the presets run one after another, as the script does.
+preset's periods. Each revision is priced the way its script runs: one pool of ``--processes`` workers taking every
+preset's jobs in the pool's order (``sidewalk.reproduce``), or, for a revision from before the pool, each preset's
+runs packed longest first onto the workers (Hydra's joblib launcher) and the presets one after another.
 The probes themselves run ``--processes`` at a time (``--probes-at-once``), pairing the two revisions' probes of one
 run, so each is measured under the contention of a full machine. Caveats, both making the estimate low or high by little: the
 probe's policies are untrained (an untrained continuous policy's evaluation episodes run longer than a trained
@@ -28,7 +29,7 @@ one's, so ``eval s`` is high), and its replay buffer is small (a DQN checkpoint 
 from __future__ import annotations
 
 import argparse
-import itertools
+import json
 import math
 import os
 import re
@@ -52,10 +53,17 @@ SCRIPT = RUNNERS_DIR / "reproduce.sh"
 WARMUP = 10  # iterations left out of ms/iteration: DQN's first updates start after 1000 frames (8 iterations)
 PROBE_ITERATIONS = 40
 PROBE_PERIOD = 20  # iterations between the probe's evaluations and checkpoints
+# What a revision's reproduce.sh runs: "pool" (sidewalk.reproduce: every preset's jobs on one pool of workers, largest
+# first, each config once) or, before the pool, "presets" (each preset's multirun in turn, its runs on the workers).
+POOL, PRESETS = "pool", "presets"
+# Lists a tree's jobs as its sidewalk.reproduce orders them, run with that tree's package.
+LIST_JOBS = ("import dataclasses, json; from sidewalk.reproduce import jobs; "
+             "print(json.dumps([{k: v for k, v in dataclasses.asdict(job).items() if k != 'config_key'} "
+             "for job in jobs()]))")
 
 
 def presets(script: Path = SCRIPT) -> list[str]:
-    """The presets a ``runners/reproduce.sh`` sweeps, read from its ``presets=(...)`` line."""
+    """The presets a pre-pool ``runners/reproduce.sh`` sweeps, read from its ``presets=(...)`` line."""
     match = re.search(r"^presets=\(([^)]*)\)", script.read_text(), re.MULTILINE)
     if match is None:
         raise RuntimeError(f"{script} has no presets=(...) line")
@@ -65,26 +73,34 @@ def presets(script: Path = SCRIPT) -> list[str]:
 def sweep(preset: str, conf_dir: Path | None = None) -> dict[str, Any]:
     """The preset's runs (each a list of overrides) and its periods, as ``runners/main.py -m`` would expand it from
     the config folder ``conf_dir`` (default: this checkout's); a revision's presets are its own."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
+    from sidewalk.reproduce import compose, sweep_points
 
-    from sidewalk.bench.common import CONF_DIR
-    from sidewalk.config import register_schemas
-
-    register_schemas()
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(conf_dir or CONF_DIR), version_base="1.3"):
-        cfg = compose("config", overrides=[f"+experiment={preset}"], return_hydra_config=True)
-    params = {key: str(value).split(",") for key, value in cfg.hydra.sweeper.params.items()}
-    names = list(params)
-    runs = [[f"{name}={value}" for name, value in zip(names, values)] for values in itertools.product(*params.values())]
-    return {"preset": preset, "runs": runs, "iterations": int(cfg.iterations), "eval_every": int(cfg.eval_every),
-            "checkpoint_every": int(cfg.checkpoint_every), "replicas": int(cfg.replicas)}
+    cfg = compose([f"+experiment={preset}"], conf_dir)
+    return {"preset": preset, "runs": sweep_points(preset, conf_dir=conf_dir), "iterations": int(cfg.iterations),
+            "eval_every": int(cfg.eval_every), "checkpoint_every": int(cfg.checkpoint_every),
+            "replicas": int(cfg.replicas)}
 
 
-def _run_key(preset: str, overrides: Sequence[str]) -> tuple[str, ...]:
-    """A run of a preset's sweep without its seed: a seed changes what is learned, not what an iteration costs."""
-    return (preset, *[override for override in overrides if not override.startswith("seed=")])
+def revision_jobs(tree: Path) -> tuple[str, list[dict[str, Any]]]:
+    """What ``reproduce.sh full`` runs in ``tree``: ``(POOL, its jobs in the pool's order)`` where the tree has the
+    pool, else ``(PRESETS, one job per run of each preset, presets in the script's order)``. A job: ``preset``,
+    ``overrides``, ``iterations``, ``eval_every``, ``checkpoint_every``, ``replicas``."""
+    if (tree / "sidewalk" / "reproduce.py").exists():
+        listed = subprocess.run([sys.executable, "-c", LIST_JOBS], cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)},
+                                capture_output=True, text=True, check=True)
+        return POOL, json.loads(listed.stdout)
+    jobs = []
+    for preset in presets(tree / "runners" / "reproduce.sh"):
+        spec = sweep(preset, tree / "conf")
+        jobs += [{"preset": preset, "overrides": [f"+experiment={preset}", *run], **{
+            key: spec[key] for key in ("iterations", "eval_every", "checkpoint_every", "replicas")}}
+            for run in spec["runs"]]
+    return PRESETS, jobs
+
+
+def _probe_key(job: dict[str, Any]) -> tuple[str, ...]:
+    """A job without its seed: a seed changes what is learned, not what an iteration costs."""
+    return tuple(override for override in job["overrides"] if not override.startswith("seed="))
 
 
 def _probe(tree: Path, overrides: list[str], workdir: Path, iterations: int, period: int) -> dict[str, float]:
@@ -129,15 +145,20 @@ def run_seconds(cost: dict[str, float], iterations: int, eval_every: int, checkp
 
 def makespan(seconds: Sequence[float], processes: int) -> float:
     """Wall-clock of jobs packed longest first onto ``processes`` workers."""
+    return in_order(sorted(seconds, reverse=True), processes)
+
+
+def in_order(seconds: Sequence[float], processes: int) -> float:
+    """Wall-clock of jobs handed out in the given order, each to the first worker free, as the pool does."""
     workers = [0.0] * processes
-    for job in sorted(seconds, reverse=True):
+    for job in seconds:
         workers[workers.index(min(workers))] += job
     return max(workers)
 
 
 def run(baseline: str | None = None, processes: int = 2, probe_iterations: int = PROBE_ITERATIONS,
         probe_period: int = PROBE_PERIOD, probes_at_once: int | None = None) -> list[dict[str, Any]]:
-    """Rows per distinct run, per sweep and in total; ``probes_at_once`` (default: ``processes``) probes run side by
+    """Rows per distinct job, per preset and in total; ``probes_at_once`` (default: ``processes``) probes run side by
     side, so that each is measured under the load of the estimate's ``processes`` (fewer when other work shares the
     machine)."""
     if probe_period < 2 or probe_iterations < WARMUP + probe_period + 2:
@@ -145,48 +166,55 @@ def run(baseline: str | None = None, processes: int = 2, probe_iterations: int =
                          f"a period of at least 2 and at least {WARMUP + probe_period + 2} iterations (an evaluation, "
                          f"a checkpoint and steady iterations after {WARMUP} of warm-up)")
     with tempfile.TemporaryDirectory(prefix="sidewalk-reproduce-") as tmp, revision_trees(baseline, tmp) as trees:
-        # Each revision's own presets: a revision whose presets train their seeds as one group has fewer, larger jobs.
-        sweeps = {name: [sweep(preset, tree / "conf") for preset in presets(tree / "runners" / "reproduce.sh")]
-                  for name, tree in trees.items()}
-        # The distinct runs: a preset's runs without their seeds (the probe runs seed 0).
-        jobs = [(key, name, tree) for name, tree in trees.items()
-                for key in dict.fromkeys(_run_key(spec["preset"], overrides)
-                                         for spec in sweeps[name] for overrides in spec["runs"])]
+        # Each revision's own jobs: its presets (a revision whose presets train their seeds as one group has fewer,
+        # larger jobs) and its way of running them (one pool, or one preset after another).
+        planned = {name: revision_jobs(tree) for name, tree in trees.items()}
+        # The distinct jobs, seeds aside (the probe runs seed 0); the two revisions' probes of one job side by side.
+        probes = list(dict.fromkeys((_probe_key(job), name) for name, (_, jobs) in planned.items() for job in jobs))
+        probes.sort(key=lambda probe_job: probe_job[0])
 
-        def probe(numbered_job):
-            number, (key, name, tree) = numbered_job
+        def probe(numbered):
+            number, (key, name) = numbered
             print(f"reproduce: probing {' '.join(key)} on {name} ...", file=sys.stderr, flush=True)
-            overrides = [f"+experiment={key[0]}", *key[1:], "seed=0"]
-            return _probe(tree, overrides, Path(tmp) / f"probe-{number}", probe_iterations, probe_period)
+            return _probe(trees[name], [*key, "seed=0"], Path(tmp) / f"probe-{number}", probe_iterations, probe_period)
 
         with ThreadPoolExecutor(max_workers=probes_at_once or processes) as pool:
-            costs = dict(zip(((key, name) for key, name, _ in jobs), pool.map(probe, enumerate(jobs))))
+            costs = dict(zip(probes, pool.map(probe, enumerate(probes))))
     rows: list[dict[str, Any]] = []
-    for name in trees:
-        rows.extend(_estimate_rows(name, sweeps[name], costs, processes))
+    for name, (model, jobs) in planned.items():
+        rows.extend(_estimate_rows(name, model, jobs, costs, processes))
     return rows
 
 
-def _estimate_rows(name: str, sweeps: list[dict[str, Any]], costs: dict[tuple, dict[str, float]],
+def _estimate_rows(name: str, model: str, jobs: list[dict[str, Any]], costs: dict[tuple, dict[str, float]],
                    processes: int) -> list[dict[str, Any]]:
-    """One revision's rows: each distinct run's costs, each sweep's makespan and the total."""
+    """One revision's rows: each distinct job's costs, each preset's job-seconds (the pool) or makespan (one preset
+    after another), and the total."""
     rows: list[dict[str, Any]] = []
+    seconds = [run_seconds(costs[_probe_key(job), name], job["iterations"], job["eval_every"], job["checkpoint_every"])
+               for job in jobs]
+    for job, job_seconds in zip(jobs, seconds):
+        cost = costs[_probe_key(job), name]
+        rows.append({"preset": job["preset"], "run": " ".join(_probe_key(job)[1:]) or "(preset)", "revision": name,
+                     "ms/iteration": cost["ms_per_iteration"], "eval s": cost["eval_s"],
+                     "checkpoint s": cost["checkpoint_s"], "fixed s": cost["fixed_s"], "run s": job_seconds})
     total = 0.0
-    for spec in sweeps:
-        keys = [_run_key(spec["preset"], overrides) for overrides in spec["runs"]]
-        for key in dict.fromkeys(keys):
-            cost = costs[key, name]
-            rows.append({"preset": spec["preset"], "run": " ".join(key[1:]) or "(preset)", "revision": name,
-                         "ms/iteration": cost["ms_per_iteration"], "eval s": cost["eval_s"],
-                         "checkpoint s": cost["checkpoint_s"], "fixed s": cost["fixed_s"],
-                         "run s": run_seconds(cost, spec["iterations"], spec["eval_every"], spec["checkpoint_every"])})
-        wall = makespan([run_seconds(costs[key, name], spec["iterations"], spec["eval_every"], spec["checkpoint_every"])
-                         for key in keys], processes)
-        total += wall
-        seeds = f", {spec['replicas']} seeds each" if spec.get("replicas", 1) > 1 else ""
-        rows.append({"preset": spec["preset"], "run": f"sweep: {len(spec['runs'])} jobs{seeds} x {spec['iterations']} "
-                     f"iterations, {processes} at a time", "revision": name, "run s": wall})
-    rows.append({"preset": "reproduce.sh full", "run": f"total ({total / 3600:.2f} h)", "revision": name,
+    for preset in dict.fromkeys(job["preset"] for job in jobs):
+        mine = [(job, s) for job, s in zip(jobs, seconds) if job["preset"] == preset]
+        job, replicas = mine[0][0], mine[0][0]["replicas"]
+        seeds = f", {replicas} seeds each" if replicas > 1 else ""
+        if model == POOL:
+            summary = f"{len(mine)} jobs{seeds} x {job['iterations']} iterations in the pool"
+            preset_seconds = sum(s for _, s in mine)
+        else:
+            preset_seconds = makespan([s for _, s in mine], processes)
+            total += preset_seconds
+            summary = f"sweep: {len(mine)} jobs{seeds} x {job['iterations']} iterations, {processes} at a time"
+        rows.append({"preset": preset, "run": summary, "revision": name, "run s": preset_seconds})
+    if model == POOL:
+        total = in_order(seconds, processes)
+    how = f"one pool of {processes}" if model == POOL else f"preset after preset, {processes} at a time"
+    rows.append({"preset": "reproduce.sh full", "run": f"total ({total / 3600:.2f} h, {how})", "revision": name,
                  "run s": total})
     return rows
 
