@@ -20,7 +20,6 @@ import scipy.stats
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from sidewalk.claims import check_claims
 from sidewalk.config import register_schemas, validate
 from sidewalk.report import (
     RunFolderError,
@@ -30,6 +29,7 @@ from sidewalk.report import (
     load_run,
     write_report,
 )
+from sidewalk.report.claims import Stat, check_claims, faster
 from sidewalk.stats import interval_estimate, iqm, mean_se
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -139,8 +139,8 @@ def test_one_run_has_no_interval_and_two_runs_a_coarse_one():
 
 
 def write_run(folder: Path, cfg, final: dict[str, float], iterations: int = 10) -> None:
-    """A run folder as runners/main.py writes it, with made-up numbers: evaluations at iterations 5 and 10 rising
-    linearly to ``final``."""
+    """A run folder as runners/main.py writes it, with made-up numbers: evaluations at iterations 5 and 10 and the
+    training success of every iteration rising linearly to ``final``."""
     folder.mkdir(parents=True)
     OmegaConf.save(cfg, folder / "config.yaml", resolve=True)
     rows = []
@@ -152,6 +152,9 @@ def write_run(folder: Path, cfg, final: dict[str, float], iterations: int = 10) 
             "frames_per_s": 1280.0,
             "train/loss": 1.0 / iteration,
         }
+        # The training success curves rise linearly to the final values, as the evaluations do.
+        row.update({f"train/{agent}_success_rate": final[f"{agent}/success_rate"] * iteration / iterations
+                    for agent in ("ego", "team") if f"{agent}/success_rate" in final})
         if iteration % 5 == 0:
             row.update({f"eval/{k}": v * iteration / iterations for k, v in final.items()})
         rows.append(row)
@@ -421,6 +424,20 @@ def test_claims_of_noise_reward_and_the_unshaped_agent(tmp_path):
         == "not reproduced"
     )
     assert got[f"{unshaped} (continuous)"] == "not reproduced"
+
+
+def test_learning_speed_is_read_off_the_training_curve_seed_by_seed(tmp_path):
+    # Equal final success, but explicit's training curve settles in 10 iterations and implicit's in 20.
+    tied = agents(ego_success=0.8)
+    claim_runs(tmp_path / "a", "fig8", "reward", {"explicit": tied, "implicit": tied}, {"implicit": 20})
+    got = verdicts(tmp_path / "a")
+    assert got["explicit cooperative reward learns better than implicit (continuous)"] == "reproduced"
+    claim_runs(tmp_path / "b", "fig8", "reward", {"explicit": tied, "implicit": tied})
+    assert verdicts(tmp_path / "b")["explicit cooperative reward learns better than implicit (continuous)"] == (
+        "not reproduced")  # the same end, reached as soon
+    # A difference within two standard errors of the difference is a tie; one seed has no SE.
+    assert faster(Stat(1000.0, 100.0), Stat(1500.0, 100.0)) and not faster(Stat(1000.0, 200.0), Stat(1500.0, 200.0))
+    assert faster(Stat(1000.0, math.nan), Stat(1001.0, math.nan)) and not faster(Stat(math.nan, 0), Stat(1.0, 0))
 
 
 def test_report_holds_the_claims_and_places_the_preamble(tmp_path):
