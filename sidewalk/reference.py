@@ -9,7 +9,8 @@ job computes, and the reference must be re-made (or a note in ``reference.json``
 
     python -m sidewalk.reference check                      # every reference folder; exit 1 on an unexplained change
     python -m sidewalk.reference check --write-status       # ... and rewrite results/reference/freshness.md
-    python -m sidewalk.reference probe results/reference    # record the probe (run it at the reference's commit)
+    python -m sidewalk.reference probe results/reference --tree ../ref   # record the probe with a worktree of the
+                                                            # reference's commit
     python -m sidewalk.reference collect SWEEP_ROOT results/reference/runs   # the runs' small files, for the report
 
 ``collect`` copies what ``runners/report.py`` reads of each finished run (``config.yaml``, ``summary.json``,
@@ -75,14 +76,31 @@ def probe_job(job_overrides: Sequence[str], work_dir: Path) -> pd.DataFrame:
     return metrics.drop(columns=[column for column in WALL_CLOCK if column in metrics.columns])
 
 
-def probe(jobs: dict[str, Sequence[str]], progress: bool = True) -> pd.DataFrame:
-    """Every job's probe, as one table with a ``job`` column."""
+def probe_job_in(tree: Path, job_overrides: Sequence[str], work_dir: Path) -> pd.DataFrame:
+    """The probe of one job made by another checkout's code (``tree``, a worktree of the reference's commit, say):
+    its ``runners/main.py`` in a process of its own, on its own package."""
+    import os
+    import subprocess
+
+    command = [sys.executable, "runners/main.py", *probe_overrides(job_overrides), f"hydra.run.dir={work_dir}"]
+    done = subprocess.run(command, cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)}, capture_output=True,
+                          text=True, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"the probe failed in {tree}: {' '.join(command)}\n{done.stderr[-3000:]}")
+    metrics = pd.read_csv(work_dir / "metrics.csv")
+    return metrics.drop(columns=[column for column in WALL_CLOCK if column in metrics.columns])
+
+
+def probe(jobs: dict[str, Sequence[str]], progress: bool = True, tree: Path | None = None) -> pd.DataFrame:
+    """Every job's probe, as one table with a ``job`` column: made by this process's code, or by ``tree``'s."""
     tables = []
     with tempfile.TemporaryDirectory(prefix="sidewalk-probe-") as tmp:
         for number, (name, overrides) in enumerate(jobs.items()):
             if progress:
                 print(f"probe: {name}", file=sys.stderr, flush=True)
-            tables.append(probe_job(overrides, Path(tmp) / str(number)).assign(job=name))
+            work_dir = Path(tmp) / str(number)
+            table = probe_job(overrides, work_dir) if tree is None else probe_job_in(tree, overrides, work_dir)
+            tables.append(table.assign(job=name))
     table = pd.concat(tables, ignore_index=True)
     return table[["job", *[column for column in table.columns if column != "job"]]]
 
@@ -230,6 +248,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     check.add_argument("--write-status", action="store_true", help=f"rewrite results/reference/{STATUS}")
     record = commands.add_parser("probe", help="record a reference folder's probe (at the reference's commit)")
     record.add_argument("folder")
+    record.add_argument("--tree", help="a checkout of the reference's commit whose code makes the probe (default: "
+                                       "this one's)")
     gather = commands.add_parser("collect", help="copy a sweep's small files for the report")
     gather.add_argument("sweep_root")
     gather.add_argument("destination")
@@ -238,8 +258,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         from sidewalk.run_folder import git_revision
 
         reference = Reference.load(Path(args.folder))
-        probe(reference.jobs).to_csv(reference.folder / PROBE, index=False, float_format="%.17g")
-        reference.meta["probe_made_at"] = git_revision()  # the code that ran it: the reference's commit
+        tree = None if args.tree is None else Path(args.tree).resolve()
+        probe(reference.jobs, tree=tree).to_csv(reference.folder / PROBE, index=False, float_format="%.17g")
+        reference.meta["probe_made_at"] = git_revision(tree)  # the code that made it: the reference's commit
         (reference.folder / META).write_text(json.dumps(reference.meta, indent=2) + "\n")
         print(f"wrote {reference.folder / PROBE}, made at {reference.meta['probe_made_at']}", file=sys.stderr)
         return 0

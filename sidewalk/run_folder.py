@@ -240,9 +240,10 @@ def package_versions() -> dict[str, str]:
     }
 
 
-def git_revision() -> str:
-    """The source tree's commit (with ``-dirty`` when it has changes), or ``unknown`` outside git."""
-    root = Path(__file__).resolve().parents[1]
+def git_revision(root: Path | None = None) -> str:
+    """The commit of the source tree (this package's, or ``root``), with ``-dirty`` when it has changes, or
+    ``unknown`` outside git."""
+    root = Path(__file__).resolve().parents[1] if root is None else Path(root)
     try:
         rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True)
         dirty = subprocess.run(["git", "status", "--porcelain"], cwd=root, capture_output=True, text=True, check=True)
