@@ -248,6 +248,14 @@ def _statistics_section(settings: Settings, safety: bool) -> list[str]:
             "- With 1 seed there is no SE and no CI (shown as – / 'no CI'); with 2 seeds the CI is marked coarse "
             "(a bootstrap of two values can take only three values). The paper used 3 seeds."
         ),
+        (
+            "- Aggregates (rliable: Agarwal et al. 2021, \"Deep RL at the Edge of the Statistical Precipice\"): under "
+            "each paper figure, its panels are tasks and the conditions at one rank of every panel one compared "
+            "setting; a row pools the learner's final values of a setting's conditions (mean ± SE over all its runs, "
+            f"IQM with the {level} CI of a stratified bootstrap: each panel's runs resampled on their own). For Fig. 5, "
+            "which compares learners, the performance profile: the fraction of a setting's runs whose final value is "
+            f"above each threshold τ (strictly, as rliable), with the same bootstrap's {level} band."
+        ),
     ]
     if safety:  # a report of runs written before the safety accounting has none of it to explain
         md.append(
