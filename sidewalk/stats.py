@@ -1,5 +1,6 @@
 """Statistics over seeds: mean and standard error (the paper's curves), interquartile mean and stratified-bootstrap
-confidence intervals (the rliable way: Agarwal et al., "Deep RL at the Edge of the Statistical Precipice", 2021).
+confidence intervals, and performance profiles with their bootstrap bands (the rliable way: Agarwal et al., "Deep RL
+at the Edge of the Statistical Precipice", 2021).
 
 Scores are arrays of shape (runs,) or (runs, tasks): one value per seed (run), optionally for several tasks
 (settings aggregated together). A stratified bootstrap resamples the runs of each task separately, with
@@ -101,21 +102,48 @@ def interval_estimate(
         reduce = STATISTICS[statistic]
     else:
         reduce = statistic
-    check_range("confidence", confidence, 0.0, 1.0, low_open=True)
-    if confidence == 1.0:  # check_range's upper bound is closed; a 100 % interval is every resample's range
-        raise ValueError(f"confidence={confidence!r} is out of range; valid: (0.0, 1.0)")
-    check_int("n_resamples", n_resamples, 1)
-    array = as_scores(scores)
-    tasks = [column[~np.isnan(column)] for column in array.T]
+    _check_bootstrap(confidence, n_resamples)
+    tasks = finite_tasks(scores)
     runs = min(len(task) for task in tasks)
     if runs == 0:
         return Interval(math.nan, math.nan, math.nan, 0, "no finite score")
     pooled = np.concatenate(tasks)
     point = float(reduce(pooled, -1))
     if runs < 2:
-        return Interval(
-            point, math.nan, math.nan, runs, "1 run: no interval (a bootstrap needs ≥ 2 runs per task)"
-        )
+        return Interval(point, math.nan, math.nan, runs, ONE_RUN_NOTE)
+    low, high = _stratified_bootstrap(tasks, reduce, confidence, n_resamples, seed)
+    return Interval(point, float(low), float(high), runs, _few_runs_note(runs))
+
+
+ONE_RUN_NOTE = "1 run: no interval (a bootstrap needs ≥ 2 runs per task)"
+
+
+def _few_runs_note(runs: int) -> str:
+    return "2 runs: coarse interval (few distinct resamples)" if runs == 2 else ""
+
+
+def finite_tasks(scores: np.ndarray | list) -> list[np.ndarray]:
+    """Each task's finite scores (a column of ``as_scores(scores)`` without its NaNs): tasks of unequal numbers of
+    runs are given as a (runs, tasks) array padded with NaN."""
+    return [column[~np.isnan(column)] for column in as_scores(scores).T]
+
+
+def _check_bootstrap(confidence: float, n_resamples: int) -> None:
+    check_range("confidence", confidence, 0.0, 1.0, low_open=True)
+    if confidence == 1.0:  # check_range's upper bound is closed; a 100 % interval is every resample's range
+        raise ValueError(f"confidence={confidence!r} is out of range; valid: (0.0, 1.0)")
+    check_int("n_resamples", n_resamples, 1)
+
+
+def _stratified_bootstrap(
+    tasks: list[np.ndarray],
+    reduce: Callable[[np.ndarray, int], np.ndarray],
+    confidence: float,
+    n_resamples: int,
+    seed: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The percentile interval (low, high) of ``reduce`` over the pooled runs of all ``tasks``, each task's runs
+    resampled on their own; ``reduce`` may return several values (a profile), and so do low and high."""
 
     def pooled_statistic(*samples: np.ndarray, axis: int = -1) -> np.ndarray:
         return reduce(np.concatenate(samples, axis=axis), axis)
@@ -134,6 +162,58 @@ def interval_estimate(
             method="percentile",
             rng=np.random.default_rng(seed),
         )
-    note = "2 runs: coarse interval (few distinct resamples)" if runs == 2 else ""
-    low, high = float(result.confidence_interval.low), float(result.confidence_interval.high)
-    return Interval(point, low, high, runs, note)
+    return result.confidence_interval.low, result.confidence_interval.high
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A performance profile: at each threshold of ``taus``, the fraction of runs scoring above it, with its
+    confidence band (``low``/``high`` NaN where no band exists, and ``note`` says why, or that it is coarse)."""
+
+    taus: np.ndarray
+    fraction: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    runs: int  # the fewest runs of any task
+    note: str = ""
+
+
+def fraction_above(scores: np.ndarray, taus: np.ndarray, axis: int = -1) -> np.ndarray:
+    """The fraction of ``scores`` along ``axis`` strictly above each of ``taus``: shape (len(taus), rest...)."""
+    above = np.expand_dims(np.moveaxis(scores, axis, -1), -2) > np.asarray(taus, dtype=float)[:, None]
+    return np.moveaxis(np.mean(above, axis=-1), -1, 0)
+
+
+def performance_profile(
+    scores: np.ndarray | list,
+    taus: np.ndarray | list,
+    *,
+    confidence: float = 0.95,
+    n_resamples: int = 10_000,
+    seed: int = 0,
+) -> Profile:
+    """The performance profile of ``scores`` (runs,) or (runs, tasks): for each threshold τ of ``taus`` the fraction
+    of all runs (pooled over tasks) whose score is strictly above τ, as rliable's ``create_performance_profile``
+    (its score distribution), with a stratified-bootstrap percentile band at ``confidence``.
+
+    NaN scores are dropped per task first, so tasks of unequal runs come as a NaN-padded array and every run
+    counts once. The same ``seed`` gives the same band; with 1 run in some task there is no band.
+    """
+    _check_bootstrap(confidence, n_resamples)
+    thresholds = np.asarray(taus, dtype=float).ravel()
+    if thresholds.size == 0 or np.isnan(thresholds).any():
+        raise ValueError(f"taus must be a non-empty list of numbers; got {taus!r}")
+    tasks = finite_tasks(scores)
+    runs = min(len(task) for task in tasks)
+    nothing = np.full(thresholds.shape, math.nan)
+    if runs == 0:
+        return Profile(thresholds, nothing, nothing, nothing, 0, "no finite score")
+    fraction = fraction_above(np.concatenate(tasks), thresholds)
+    if runs < 2:
+        return Profile(thresholds, fraction, nothing, nothing, runs, ONE_RUN_NOTE)
+
+    def reduce(pooled: np.ndarray, axis: int) -> np.ndarray:
+        return fraction_above(pooled, thresholds, axis)
+
+    low, high = _stratified_bootstrap(tasks, reduce, confidence, n_resamples, seed)
+    return Profile(thresholds, fraction, np.asarray(low), np.asarray(high), runs, _few_runs_note(runs))

@@ -20,6 +20,8 @@ of its own), and writes into ``out``:
   and, beside each family's final values, Safety Gym's triple (final return, final cost, training cost rate) and
   the shield's rate where runs log it; and the run folders that were skipped and why (no ``metrics.csv``, a
   truncated CSV, no ``summary.json``, a failed job...);
+- under each paper figure, rliable's aggregates over its panels (``aggregates``) and, for Fig. 5, which compares
+  learners, ``figures/fig5_performance_profile.png``: the fraction of runs above each threshold, with its band;
 - ``report.csv``: every number in ``report.md``, one per row; ``curves.csv``: every plotted point.
 
 Learning curves read the ``eval/<agent>/<metric>`` columns of ``metrics.csv`` (the evaluations during training);
@@ -33,6 +35,8 @@ The modules, each importing only those listed above it (``tests/test_report_impo
 - ``tables``: curves, final values with mean ± SE and IQM intervals, ``report.csv``'s rows, Markdown tables;
 - ``checkpoints``: a run's config and learner rebuilt from its folder, its final evaluation replayed;
 - ``figures``: learning curves, the paper's figures and Fig. 10's trajectories, drawn with their report.md lines;
+- ``aggregates``: a paper figure's compared settings pooled over its panels (IQM, stratified-bootstrap interval) and
+  the performance profile of a figure that compares learners;
 - ``crossplay``: the cross-play matrix of a ``runners/crossplay.py`` folder, its heatmaps and report.md section;
 - ``claims``: the paper's claims (SPEC §4) held against the runs, a verdict each;
 - ``document``: ``write_report``, which puts ``report.md`` together and writes the files.

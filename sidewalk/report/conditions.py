@@ -208,6 +208,7 @@ class PaperFigure:
     vary: tuple[str, ...]
     primary: str
     needs: str  # what to run when the figure is missing
+    profile: bool = False  # it compares learners: the report draws a performance profile of their final metric
 
 
 PAPER_FIGURES = (
@@ -218,6 +219,7 @@ PAPER_FIGURES = (
         ("opponent.", "reward.shaped_agents"),
         "opponent.name",
         "runs of one setting against ≥ 2 opponents (+experiment=fig5_discrete / fig5_continuous)",
+        profile=True,
     ),
     PaperFigure(
         "fig6_success_under_noise",
@@ -280,3 +282,73 @@ def panel_titles(panels: Sequence[Sequence[Condition]], spec: PaperFigure) -> li
         extra = [k for k in varying_keys(namesakes) if not _matches(k, spec.vary)]
         out.append((title, describe(group[0], extra) if len(namesakes) > 1 else ""))
     return out
+
+
+@dataclass
+class ComparedSetting:
+    """The conditions at one rank of every panel of a figure (one per panel, in the panels' order), compared as one
+    setting across the panels: Fig. 5's learner against the planner is dijkstra in the grid and prm in the plane."""
+
+    label: str  # the values it pools, as the panels' legends tell them: "dijkstra / prm"
+    conditions: list[Condition]
+
+    @property
+    def ident(self) -> str:
+        return "+".join(condition.ident for condition in self.conditions)
+
+
+def _ranked(spec: PaperFigure, panel: Sequence[Condition]) -> dict[tuple[int, int], Condition]:
+    """``panel``'s conditions by (rank of their ``spec.primary`` value in the panel's order, rank among the
+    conditions sharing that value): a second condition at one value (another reward shaping, say) gets its own
+    rank rather than shifting every value after it."""
+    values: list[str] = []
+    ranked: dict[tuple[int, int], Condition] = {}
+    for condition in panel:
+        value = json.dumps(condition.flat.get(spec.primary), default=str)
+        if value not in values:
+            values.append(value)
+        rank = values.index(value)
+        ranked[(rank, sum(1 for r, _ in ranked if r == rank))] = condition
+    return ranked
+
+
+def _setting_text(spec: PaperFigure, panel: Sequence[Condition], condition: Condition) -> str:
+    """``condition``'s setting in ``panel``: its values of the keys that follow ``spec.primary`` across the panel
+    ("prm", "explicit reward"), or its whole legend text where another condition of the panel shares its value
+    ("prm, shaped [0]")."""
+
+    def value(c: Condition, key: str) -> str:
+        return json.dumps(c.flat.get(key, "<absent>"), default=str)
+
+    varying = varying_keys(panel)
+    if sum(value(c, spec.primary) == value(condition, spec.primary) for c in panel) > 1:
+        return describe(condition, varying)
+    # A key follows the primary one where conditions of equal primary value have equal values of it.
+    following = [
+        key
+        for key in varying
+        if len({(value(c, spec.primary), value(c, key)) for c in panel})
+        == len({value(c, spec.primary) for c in panel})
+    ]
+    return describe(condition, following)
+
+
+def compared_settings(
+    spec: PaperFigure, panels: Sequence[Sequence[Condition]]
+) -> tuple[list[ComparedSetting], list[Condition]]:
+    """The settings ``spec``'s panels compare, matched across panels by rank (panels sort their conditions alike:
+    random, planner, centralized; lowest noise first; explicit before implicit), each labelled by the values it
+    pools; and the conditions left out because some panel has nothing at their rank."""
+    ranked = [_ranked(spec, panel) for panel in panels]
+    shared = sorted(set.intersection(*(set(r) for r in ranked))) if ranked else []
+    settings = []
+    for rank in shared:
+        members = [by_rank[rank] for by_rank in ranked]
+        labels: list[str] = []
+        for panel, condition in zip(panels, members):
+            label = _setting_text(spec, panel, condition)
+            if label not in labels:
+                labels.append(label)
+        settings.append(ComparedSetting(" / ".join(labels), members))
+    left_out = [c for by_rank in ranked for rank, c in sorted(by_rank.items()) if rank not in shared]
+    return settings, left_out

@@ -14,6 +14,7 @@ from typing import Any
 
 import pandas as pd
 
+from sidewalk.report.aggregates import aggregate_section
 from sidewalk.report.claims import claims_section
 from sidewalk.report.conditions import (
     BOOKKEEPING_KEYS,
@@ -53,8 +54,22 @@ class ReportResult:
     crossplay: list[Path] = field(default_factory=list)  # cross-play folders whose matrix the report includes
 
 
-# The columns of curves.csv: every plotted point of the report's figures.
-CURVES_COLUMNS = ("figure", "condition_id", "condition", "agent", "metric", "x_axis", "x", "mean", "se", "seeds")
+# The columns of curves.csv: every plotted point of the report's figures; ci_low/ci_high only where the band is a
+# bootstrap interval (a performance profile), not ± SE.
+CURVES_COLUMNS = (
+    "figure",
+    "condition_id",
+    "condition",
+    "agent",
+    "metric",
+    "x_axis",
+    "x",
+    "mean",
+    "se",
+    "seeds",
+    "ci_low",
+    "ci_high",
+)
 
 
 def write_report(
@@ -112,6 +127,7 @@ def write_report(
     md += ["## Paper figures", ""]
     for spec in PAPER_FIGURES:
         md += paper_figure_section(spec, conditions, settings, figures_dir, figures, numbers, curves_rows, notes)
+        md += aggregate_section(spec, conditions, settings, figures_dir, figures, numbers, curves_rows)
     md += trajectory_section(conditions, settings, figures_dir, figures, notes)
     md += family_sections(conditions, settings, figures_dir, figures, numbers, curves_rows)
     md += crossplay_sections(crossplay, figures_dir, out, figures, numbers)
@@ -162,7 +178,8 @@ def _write_files(out: Path, md: list[str], numbers: NumberLog, curves_rows: list
     report_md = out / "report.md"
     report_md.write_text("\n".join(md) + "\n")
     numbers.frame().to_csv(out / "report.csv", index=False)
-    pd.DataFrame(curves_rows, columns=list(CURVES_COLUMNS)).to_csv(out / "curves.csv", index=False)
+    # Objects, not a float column: frames stay integers beside a profile's thresholds, each value written as it came.
+    pd.DataFrame(curves_rows, columns=list(CURVES_COLUMNS), dtype=object).to_csv(out / "curves.csv", index=False)
     return report_md
 
 
@@ -230,6 +247,14 @@ def _statistics_section(settings: Settings, safety: bool) -> list[str]:
         (
             "- With 1 seed there is no SE and no CI (shown as – / 'no CI'); with 2 seeds the CI is marked coarse "
             "(a bootstrap of two values can take only three values). The paper used 3 seeds."
+        ),
+        (
+            "- Aggregates (rliable: Agarwal et al. 2021, \"Deep RL at the Edge of the Statistical Precipice\"): under "
+            "each paper figure, its panels are tasks and the conditions at one rank of every panel one compared "
+            "setting; a row pools the learner's final values of a setting's conditions (mean ± SE over all its runs, "
+            f"IQM with the {level} CI of a stratified bootstrap: each panel's runs resampled on their own). For Fig. 5, "
+            "which compares learners, the performance profile: the fraction of a setting's runs whose final value is "
+            f"above each threshold τ (strictly, as rliable), with the same bootstrap's {level} band."
         ),
     ]
     if safety:  # a report of runs written before the safety accounting has none of it to explain

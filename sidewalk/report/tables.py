@@ -175,7 +175,7 @@ def safety_table(rows: Sequence[tuple[Condition, str, dict[str, Final]]]) -> lis
             if not recorded(final):
                 cells.append(NOT_RECORDED)
                 continue
-            cells.append(_mean_se_text(final))
+            cells.append(mean_se_text(final))
         lines.append(
             f"| {condition.ident} | {condition.label} | {agent_name} | {len(condition.runs)} | "
             + " | ".join(cells)
@@ -213,11 +213,36 @@ class NumberLog:
         seeds: int,
         note: str = "",
     ) -> None:
+        self.add_row(
+            section,
+            condition.ident if condition else "",
+            condition.label if condition else "",
+            agent,
+            metric,
+            statistic,
+            value,
+            seeds,
+            note,
+        )
+
+    def add_row(
+        self,
+        section: str,
+        condition_id: str,
+        condition: str,
+        agent: str,
+        metric: str,
+        statistic: str,
+        value: float,
+        seeds: int,
+        note: str = "",
+    ) -> None:
+        """One number of what ``condition_id`` and ``condition`` name: one condition, or several pooled ("C1+C7")."""
         self.rows.append(
             {
                 "section": section,
-                "condition_id": condition.ident if condition else "",
-                "condition": condition.label if condition else "",
+                "condition_id": condition_id,
+                "condition": condition,
                 "agent": agent,
                 "metric": metric,
                 "statistic": statistic,
@@ -228,6 +253,10 @@ class NumberLog:
         )
 
     def add_final(self, section: str, condition: Condition, final: Final) -> None:
+        self.add_final_row(section, condition.ident, condition.label, final)
+
+    def add_final_row(self, section: str, condition_id: str, condition: str, final: Final) -> None:
+        """``final``'s mean, SE, IQM and CI bounds, as ``add_row`` names them; seeds: the runs with a value."""
         n = int(np.sum(~np.isnan(final.values)))
         for statistic, value in (
             ("mean", final.mean),
@@ -236,7 +265,17 @@ class NumberLog:
             ("ci_low", final.iqm.low),
             ("ci_high", final.iqm.high),
         ):
-            self.add(section, condition, final.agent, final.metric, statistic, value, n, final.iqm.note)
+            self.add_row(
+                section,
+                condition_id,
+                condition,
+                final.agent,
+                final.metric,
+                statistic,
+                value,
+                n,
+                final.iqm.note,
+            )
 
     def frame(self) -> pd.DataFrame:
         return pd.DataFrame(self.rows, columns=list(self.COLUMNS))
@@ -257,9 +296,21 @@ def fmt_metric(value: float, metric: str) -> str:
     return fmt(value)
 
 
-def _mean_se_text(final: Final) -> str:
+def mean_se_text(final: Final) -> str:
+    """``final``'s mean ± SE as ``report.md`` shows it (the mean alone where there is no SE)."""
     se = "" if math.isnan(final.se) else f" ± {fmt_metric(final.se, final.metric)}"
     return fmt_metric(final.mean, final.metric) + se
+
+
+def iqm_text(final: Final) -> str:
+    """``final``'s IQM and its interval as ``report.md`` shows them: "0.400 [0.200, 0.600]", "no CI" without one,
+    "(coarse)" after one of two runs."""
+    interval = final.iqm
+    low, high = fmt_metric(interval.low, final.metric), fmt_metric(interval.high, final.metric)
+    ci = "no CI" if math.isnan(interval.low) else f"[{low}, {high}]"
+    if interval.note.startswith("2 runs"):
+        ci += " (coarse)"
+    return f"{fmt_metric(interval.point, final.metric)} {ci}"
 
 
 def final_table(rows: Sequence[tuple[Condition, str, Final]], confidence: float) -> list[str]:
@@ -271,13 +322,8 @@ def final_table(rows: Sequence[tuple[Condition, str, Final]], confidence: float)
     ]
     for condition, agent_name, final in rows:
         n = int(np.sum(~np.isnan(final.values)))
-        interval = final.iqm
-        low, high = fmt_metric(interval.low, final.metric), fmt_metric(interval.high, final.metric)
-        ci = "no CI" if math.isnan(interval.low) else f"[{low}, {high}]"
-        if interval.note.startswith("2 runs"):
-            ci += " (coarse)"
         lines.append(
             f"| {condition.ident} | {condition.label} | {agent_name} | {final.metric} | {n} | "
-            f"{_mean_se_text(final)} | {fmt_metric(interval.point, final.metric)} {ci} |"
+            f"{mean_se_text(final)} | {iqm_text(final)} |"
         )
     return lines
