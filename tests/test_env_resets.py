@@ -5,7 +5,6 @@ implementations of the earlier, simpler code live here and must agree bit for bi
 from __future__ import annotations
 
 import hashlib
-import time
 
 import pytest
 import torch
@@ -308,9 +307,9 @@ def test_uniform_bounded_leaves_unequal_bounds_to_torchrl():
     assert torch.equal(composite["observation"].space.high, high)
 
 
-def test_large_image_env_builds_fast():
-    # TorchRL's own check of the bounds took ~10 s here (4096 worlds × 16 agents × 28 × 58 pixels).
-    start = time.perf_counter()
+def test_large_image_env_keeps_its_uniform_bounds_compact():
+    # TorchRL's own check of per-item bounds took ~10 s here (4096 worlds × 16 agents × 28 × 58 pixels); the uniform
+    # spec skips it (its speed is the env benchmark's to measure, not a test's).
     env = DiscreteSidewalkEnv(num_envs=4096, n_agents=16, layout="random", width_cells=14, length_cells=29, seed=0)
-    assert env.observation_spec[AGENT_GROUP, "observation"].space.batch_size == (4096, 16)
-    assert time.perf_counter() - start < 6.0
+    spec = env.observation_spec[AGENT_GROUP, "observation"]
+    assert type(spec) is UniformBounded and spec.space.batch_size == (4096, 16)
