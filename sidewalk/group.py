@@ -126,7 +126,8 @@ class ReplicaPolicy(TensorDictModuleBase):
         outputs = []
         for replica, (policy, block) in enumerate(zip(self.policies, self.blocks)):
             with self.streams.use(replica):
-                outputs.append(policy(tensordict[block]))
+                # A copy, laid out as a lone run's batch: a BLAS may round a view at an offset otherwise.
+                outputs.append(policy(tensordict[block].clone()))
         return torch.cat(outputs, 0)
 
 

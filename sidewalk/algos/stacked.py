@@ -8,25 +8,28 @@ computes, each replica's logs under the same keys, with each replica's random dr
 value-fit permutations and PPO's sampled entropy noise from its ``ReplicaStreams`` stream, PPO's minibatch orders
 from the learner's own generator), in the loop's order and sizes.
 
-How it stays the loop's arithmetic: linear layers run as one batched matmul (``torch.baddbmm``), which on this CPU
-build rounds exactly as ``F.linear`` does for each replica except where one of them takes another kernel: a product
-of under 400 multiply-adds (ATen's naive batched loop) and a width of 1 (value heads: ``F.linear``'s gemv); those run
-per replica (``_runs_per_replica``), as do other layers with parameters (the image encoder). Where the order of the
-arithmetic decides the rounding, the stacked update keeps the loop's: no view stands between a linear layer and its
-input (the autograd engine sums the gradients reaching a tensor in the order they arrive, and a Fisher-vector
-product, a double backward, sums three at each tanh output: ``_run``); GAE runs the value network on observations
-and next observations as one block of rows, as the loop's ``vmap`` does; the distribution math runs per replica
-where a replica's elements do not fill whole vector steps (``_aligned``); the sampled entropy takes TorchRL's
-operations in its order. Adam runs on the stacks with each replica's own scalars; the scalars a replica's decisions
-hinge on (the conjugate-gradient dot products, the line search's tests, the advantage statistics, the logs) are
-computed per replica with the loop's kernels. Measured (``tests/test_stacked_updates.py``): TRPO and PPO on vectors
-and on images are bit-identical to the loop, at the default sizes and at small odd ones, hence a replica's results
-do not depend on R or on the other replicas.
+How it stays the loop's arithmetic: linear layers run as one batched matmul (``torch.baddbmm``) only where that rounds
+exactly as ``F.linear`` does for each replica, which the BLAS decides by sizes and, on some CPUs (MKL on an AMD EPYC),
+by the operands' memory alignment too: a product under ATen's naive-loop threshold and a width of 1 always run per
+replica, any other size is measured once on this machine (``_batched_rounds_as_linear``: forward, first and second
+derivatives), and every per-replica operand is laid out as a lone run's tensor (``_lone``: contiguous from an
+aligned address). Where the order of the arithmetic decides the rounding, the stacked update keeps the loop's: no
+view stands between a linear layer and its input (the autograd engine sums the gradients reaching a tensor in the
+order they arrive, and a Fisher-vector product, a double backward, sums three at each tanh output: ``_run``); GAE
+runs per replica, by each learner's own module (its value network under TorchRL's ``vmap``, its discounted sums
+through a matmul); the distribution math runs per replica where a replica's elements do not fill whole vector steps
+(``_aligned``); the sampled entropy takes TorchRL's operations in its order. Adam runs on the stacks with each
+replica's own scalars; the scalars a replica's decisions hinge on (the conjugate-gradient dot products, the line
+search's tests, the advantage statistics, the logs) are computed per replica with the loop's kernels. Measured
+(``tests/test_stacked_updates.py``): TRPO and PPO on vectors and on images are bit-identical to the loop, at the
+default sizes and at small odd ones (on an AMD EPYC, where the BLAS rounds by alignment), hence a replica's results do not depend on
+R or on the other replicas.
 """
 
 from __future__ import annotations
 
 import abc
+import functools
 import math
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
@@ -40,7 +43,6 @@ from torch.distributions.utils import _sum_rightmost
 from torch.func import functional_call
 from torchrl.modules import MLP, TanhNormal
 from torchrl.modules.distributions import has_analytic_entropy
-from torchrl.objectives.value import GAE
 
 from sidewalk.algos.base import Algorithm
 from sidewalk.algos.networks import RunningNorm
@@ -99,14 +101,79 @@ def _aligned(stack: torch.Tensor) -> bool:
 NAIVE_BMM_BELOW = 400
 
 
-def _runs_per_replica(weight: torch.Tensor, rows: int) -> bool:
+def _runs_per_replica(weight: torch.Tensor, rows: int, bias: bool = True) -> bool:
     """Whether a linear layer of ``weight`` (R, out, in) on ``rows`` rows a replica runs per replica (``F.linear``)
     rather than as one batched matmul: where the batched matmul would round otherwise than ``F.linear`` does. That is
-    a product under ``NAIVE_BMM_BELOW`` (ATen's naive loop, where ``F.linear`` calls the BLAS gemm), and an output
-    or input width of 1 (the BLAS runs a gemv for ``F.linear``'s forward, or its input gradient, and the batched
-    gemm does not). Measured on this build (``tests/test_stacked_updates.py`` sweeps shapes, forward and backward)."""
+    always a product under ``NAIVE_BMM_BELOW`` (ATen's naive loop, where ``F.linear`` calls the BLAS gemm) and an
+    output or input width of 1 (the BLAS runs a gemv for ``F.linear``'s forward, or its input gradient, and the
+    batched gemm does not); anything else the BLAS of this machine decides, measured once per size
+    (``_batched_rounds_as_linear``): MKL on an AMD EPYC sums a batched weight gradient otherwise than a lone one's
+    for most sizes, where on an Intel Xeon it did not."""
     out_features, in_features = weight.shape[-2:]
-    return out_features == 1 or in_features == 1 or rows * out_features * in_features < NAIVE_BMM_BELOW
+    if out_features == 1 or in_features == 1 or rows * out_features * in_features < NAIVE_BMM_BELOW:
+        return True
+    return not _batched_rounds_as_linear(len(weight), rows, in_features, out_features, bias, weight.dtype,
+                                         str(weight.device))
+
+
+# The alignment of a lone tensor's memory (PyTorch's CPU allocator): MKL on some CPUs (an AMD EPYC here) picks its
+# gemm kernel, and so the order of its sums, by the operands' alignment as well as their sizes.
+ALIGNMENT_BYTES = 64
+
+
+def _lone(tensor: torch.Tensor) -> torch.Tensor:
+    """``tensor`` in memory laid out as a lone run's own tensor would be: contiguous from an aligned address (a copy,
+    gradients flowing through, where a view of a stack is not)."""
+    if tensor.is_contiguous() and tensor.data_ptr() % ALIGNMENT_BYTES == 0:
+        return tensor
+    return tensor.clone(memory_format=torch.contiguous_format)
+
+
+def _batched_linear(weight: torch.Tensor, bias: torch.Tensor | None, x: torch.Tensor) -> torch.Tensor:
+    """Every replica's ``F.linear`` as one batched matmul: ``x`` (R, N, in), ``weight`` (R, out, in), each stack
+    from an aligned address (``_batched_rounds_as_linear`` measures that layout)."""
+    weight, x = _lone(weight), _lone(x)
+    bias = None if bias is None else _lone(bias)
+    transposed = weight.transpose(1, 2)
+    return x @ transposed if bias is None else torch.baddbmm(bias.unsqueeze(1), x, transposed)
+
+
+@functools.lru_cache(maxsize=None)
+def _batched_rounds_as_linear(replicas: int, rows: int, in_features: int, out_features: int, bias: bool,
+                              dtype: torch.dtype, device: str) -> bool:
+    """Whether one batched matmul gives each of ``replicas`` replicas exactly its own ``F.linear``, forward, first
+    and second derivatives (TRPO's Fisher-vector products), at these sizes on this machine. Measured on random
+    values, once: the BLAS picks its kernels, and so the order of its sums, by sizes, not by values."""
+    generator = torch.Generator().manual_seed(0)
+
+    def draw(*shape: int) -> torch.Tensor:
+        with torch.inference_mode(False):
+            return torch.randn(*shape, generator=generator, dtype=dtype).to(device)
+
+    leaves = [draw(replicas, out_features, in_features), draw(replicas, rows, in_features)]
+    leaves += [draw(replicas, out_features)] if bias else []
+    upstream, direction = draw(replicas, rows, out_features), [draw(*leaf.shape) for leaf in leaves]
+
+    def derivatives(parts: list[torch.Tensor], up: torch.Tensor, along: list[torch.Tensor], batched: bool):
+        parts = [part.detach().clone().requires_grad_() for part in parts]  # fresh, aligned: a lone run's layout
+        out = _batched_linear(*_ordered(parts)) if batched else F.linear(parts[1], parts[0], *parts[2:])
+        grads = torch.autograd.grad(out, parts, up, create_graph=True)
+        second = torch.autograd.grad(sum((g * v).sum() for g, v in zip(grads, along)), parts, allow_unused=True)
+        return [out, *grads, *(torch.zeros_like(p) if g is None else g for p, g in zip(parts, second))]
+
+    with torch.inference_mode(False), torch.enable_grad():  # callers may be in no_grad (GAE) or inference mode
+        together = derivatives(leaves, upstream, direction, batched=True)
+        for replica in range(replicas):
+            alone = derivatives([leaf[replica] for leaf in leaves], upstream[replica],
+                                [v[replica] for v in direction], batched=False)
+            if not all(torch.equal(a[replica], b) for a, b in zip(together, alone)):
+                return False
+    return True
+
+
+def _ordered(parts: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+    """(weight, bias or None, x) from [weight, x] or [weight, x, bias]."""
+    return parts[0], (parts[2] if len(parts) > 2 else None), parts[1]
 
 
 # A layer's input or output for R replicas: one (R, N, ...) stack, or a list of R per-replica (N, ...) tensors.
@@ -130,13 +197,12 @@ def _linear(weight: torch.Tensor, bias: torch.Tensor | None, x: Activations) -> 
     """``F.linear`` for each replica: a list of per-replica outputs where ``_runs_per_replica``, else one batched
     matmul on the stack (``x`` used as it is when it is (R, N, in): no view between it and the matmul, see
     ``_run``)."""
-    if _runs_per_replica(weight, _rows(x)):
-        biases = [None] * len(weight) if bias is None else bias.unbind(0)
-        return [F.linear(rows, w, b) for rows, w, b in zip(_as_list(x), weight.unbind(0), biases)]
+    if _runs_per_replica(weight, _rows(x), bias is not None):
+        biases = [None] * len(weight) if bias is None else [_lone(b) for b in bias.unbind(0)]
+        return [F.linear(_lone(rows), _lone(w), b) for rows, w, b in zip(_as_list(x), weight.unbind(0), biases)]
     x = _as_stack(x)
     flat = x if x.dim() == 3 else x.reshape(x.shape[0], -1, x.shape[-1])
-    transposed = weight.transpose(1, 2)
-    out = flat @ transposed if bias is None else torch.baddbmm(bias.unsqueeze(1), flat, transposed)
+    out = _batched_linear(weight, bias, flat)
     return out if x.dim() == 3 else out.reshape(*x.shape[:-1], weight.shape[1])
 
 
@@ -173,7 +239,7 @@ def _run(layers: Sequence[tuple[str, nn.Module]], state: dict[str, torch.Tensor]
             x = _linear(own["weight"], own.get("bias"), x)
             following = next(((name, nxt) for name, nxt in layers[index + 1:] if _own(state, name)), None)
             per_replica = following is not None and isinstance(following[1], nn.Linear) and _runs_per_replica(
-                state[following[0] + "weight"], _rows(x))
+                state[following[0] + "weight"], _rows(x), following[0] + "bias" in state)
             x = _as_list(x) if per_replica else _as_stack(x)
         elif not own:  # no state: the layer acts on each sample alone, whatever the leading dimensions
             x = [layer(rows) for rows in x] if isinstance(x, list) else layer(x)
@@ -258,7 +324,7 @@ class StackedNetwork:
 
 def _dots(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Each row's dot product with the loop's own kernel (``torch.dot``), so a replica's scalars do not depend on R."""
-    return torch.stack([torch.dot(x, y) for x, y in zip(a, b)])
+    return torch.stack([torch.dot(_lone(x), _lone(y)) for x, y in zip(a, b)])  # the BLAS dot, on a lone's layout
 
 
 def _per_replica(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
@@ -425,20 +491,19 @@ class StackedUpdate(abc.ABC):
             data.set(key, torch.stack([batch.get(key).to(self.device) for batch in batches]))
         return data
 
-    @staticmethod
     @torch.no_grad()
-    def _advantages(data: TensorDictBase, value: StackedNetwork, gae: GAE) -> TensorDictBase:
-        """GAE for every replica at once: ``state_value`` of both steps by the stacked value network, then ``gae``
-        (built without a network) reads them. Each learner's GAE runs its network once on its observations and
-        next observations stacked (``vmap`` over the two folds them into one block of rows, the observations'
-        first): so do the replicas here, as row count and order can change how a matmul rounds a row."""
-        replicas = data.batch_size[0]
-        both = [data.get(key).reshape(replicas, -1, *data.get(key).shape[data.batch_dims:])
-                for key in ("observation", ("next", "observation"))]
-        values = value(torch.cat(both, 1))
-        for key, values_of in zip(("state_value", ("next", "state_value")), values.chunk(2, 1)):
-            data.set(key, values_of.reshape(*data.batch_size, -1).contiguous())
-        return gae(data)
+    def _advantages(self, batches: Sequence[TensorDictBase]) -> TensorDictBase:
+        """Every replica's GAE by its own module (its value network inside) on its own batch, stacked (R, B, T):
+        the very arithmetic of its lone update, whose value network TorchRL runs under ``vmap`` and whose
+        discounted sums run through a matmul, either of which a batched computation could round otherwise."""
+        stacked = self._stack(batches)  # counts the frames, checks the replicas
+        own = []
+        for replica, algo in enumerate(self.algos):
+            batch = TensorDict({key: stacked.get(key)[replica].clone() for key in BATCH_KEYS},
+                               batch_size=stacked.batch_size[1:], device=self.device)
+            algo.advantage(batch)
+            own.append(batch)
+        return torch.stack(own)
 
     @staticmethod
     def _flat(data: TensorDictBase) -> dict[str, torch.Tensor]:
@@ -499,8 +564,7 @@ class StackedTRPO(StackedUpdate):
         cfg = self.config
         self.policy, self.keys = self._policy()
         self.value = StackedNetwork([algo.value.module for algo in self.algos])
-        gae = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=None, average_gae=False)
-        flat = self._flat(self._advantages(self._stack(batches), self.value, gae))
+        flat = self._flat(self._advantages(batches))
         self._update_observation_statistics(flat["observation"], self.policy, self.value)
         # Each replica's standardisation on its own rows, with the loop's kernels.
         flat["advantage"] = torch.stack([(adv - adv.mean()) / (adv.std() + 1e-8) for adv in flat["advantage"]])
@@ -598,7 +662,7 @@ class StackedTRPO(StackedUpdate):
             kl = kl.double()
             accepted = searching & improvement.isfinite() & kl.isfinite() & (kl <= cfg.max_kl) & (improvement > 0)
             for replica in accepted.nonzero().flatten().tolist():
-                expected = fraction * torch.dot(gradient[replica], full_step[replica]).item()
+                expected = fraction * torch.dot(_lone(gradient[replica]), _lone(full_step[replica])).item()
                 logs[replica].update(kl=kl[replica].item(), surrogate_improvement=improvement[replica].item(),
                                      expected_improvement=expected, step_accepted=1.0, step_fraction=fraction)
                 new_theta[replica] = candidate[replica]
@@ -663,12 +727,7 @@ class StackedPPO(StackedUpdate):
         cfg = self.config
         self.policy, self.keys = self._policy()
         self.value = StackedNetwork([algo.critic.module for algo in self.algos])
-        gae = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=None, average_gae=False)
-        data = self._advantages(self._stack(batches), self.value, gae)
-        # average_gae: each replica's advantages standardised over its own batch, as its own GAE does.
-        advantage = data.get("advantage")
-        data.set("advantage", torch.stack([(adv - adv.mean()) / adv.std().clamp_min(1e-4) for adv in advantage]))
-        flat = self._flat(data)
+        flat = self._flat(self._advantages(batches))  # each replica's own GAE standardises its advantages
         self._update_observation_statistics(flat["observation"], self.policy, self.value)
         with torch.no_grad():
             flat["policy_features"] = self.policy.features(flat["observation"])
