@@ -12,6 +12,7 @@ job computes, and the reference must be re-made (or a note in ``reference.json``
     python -m sidewalk.reference probe results/reference --tree ../ref   # record the probe with a worktree of the
                                                             # reference's commit
     python -m sidewalk.reference collect SWEEP_ROOT results/reference/runs   # the runs' small files, for the report
+    python -m sidewalk.reference trees ../ref ../ref2      # do two commits compute every job alike, in a group too?
 
 ``collect`` copies what ``runners/report.py`` reads of each finished run (``config.yaml``, ``summary.json``,
 ``history.jsonl``, the metrics as ``metrics.csv.xz`` without the learners' diagnostics) and each sweep's
@@ -76,30 +77,35 @@ def probe_job(job_overrides: Sequence[str], work_dir: Path) -> pd.DataFrame:
     return metrics.drop(columns=[column for column in WALL_CLOCK if column in metrics.columns])
 
 
-def probe_job_in(tree: Path, job_overrides: Sequence[str], work_dir: Path) -> pd.DataFrame:
+def probe_job_in(tree: Path, job_overrides: Sequence[str], work_dir: Path, replicas: int = 1) -> pd.DataFrame:
     """The probe of one job made by another checkout's code (``tree``, a worktree of the reference's commit, say):
-    its ``runners/main.py`` in a process of its own, on its own package."""
+    its ``runners/main.py`` in a process of its own, on its own package. ``replicas`` > 1: seeds 0..R-1 trained as
+    one group, the last replica's metrics (its worlds and networks at the largest offset in the group's tensors)."""
     import os
     import subprocess
 
-    command = [sys.executable, "runners/main.py", *probe_overrides(job_overrides), f"hydra.run.dir={work_dir}"]
+    command = [sys.executable, "runners/main.py", *probe_overrides(job_overrides), f"replicas={replicas}",
+               f"hydra.run.dir={work_dir}"]
     done = subprocess.run(command, cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)}, capture_output=True,
                           text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"the probe failed in {tree}: {' '.join(command)}\n{done.stderr[-3000:]}")
-    metrics = pd.read_csv(work_dir / "metrics.csv")
+    metrics = pd.read_csv(work_dir / (f"seed{replicas - 1}" if replicas > 1 else ".") / "metrics.csv")
     return metrics.drop(columns=[column for column in WALL_CLOCK if column in metrics.columns])
 
 
-def probe(jobs: dict[str, Sequence[str]], progress: bool = True, tree: Path | None = None) -> pd.DataFrame:
-    """Every job's probe, as one table with a ``job`` column: made by this process's code, or by ``tree``'s."""
+def probe(jobs: dict[str, Sequence[str]], progress: bool = True, tree: Path | None = None, replicas: int = 1
+          ) -> pd.DataFrame:
+    """Every job's probe, as one table with a ``job`` column: made by this process's code, or by ``tree``'s (there
+    also as a group of ``replicas``)."""
     tables = []
     with tempfile.TemporaryDirectory(prefix="sidewalk-probe-") as tmp:
         for number, (name, overrides) in enumerate(jobs.items()):
             if progress:
                 print(f"probe: {name}", file=sys.stderr, flush=True)
             work_dir = Path(tmp) / str(number)
-            table = probe_job(overrides, work_dir) if tree is None else probe_job_in(tree, overrides, work_dir)
+            table = (probe_job(overrides, work_dir) if tree is None
+                     else probe_job_in(tree, overrides, work_dir, replicas))
             tables.append(table.assign(job=name))
     table = pd.concat(tables, ignore_index=True)
     return table[["job", *[column for column in table.columns if column != "job"]]]
@@ -238,6 +244,18 @@ def collect(sweep_root: Path, destination: Path) -> int:
 # ---- the command ----------------------------------------------------------------------------------------------------
 
 
+def _compare_trees(first: Path, second: Path, folders: Sequence[str], replicas: int) -> int:
+    """Every job of ``folders`` probed by both checkouts as a group of ``replicas``; exit 1 where they differ."""
+    differ = 0
+    for reference in references(folders):
+        made = [probe(reference.jobs, tree=tree, replicas=replicas) for tree in (first, second)]
+        for result in compare(*made):
+            differ += not result.same
+            print(f"{reference.name}/ {result.job}: {'same' if result.same else 'DIFFERENT'} ({result.detail})")
+    return 1 if differ else 0
+
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sidewalk.reference", description=__doc__.splitlines()[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -250,6 +268,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     record.add_argument("folder")
     record.add_argument("--tree", help="a checkout of the reference's commit whose code makes the probe (default: "
                                        "this one's)")
+    trees = commands.add_parser("trees", help="whether two checkouts compute every reference job alike (a group of "
+                                              "--replicas seeds: what a group's arithmetic changes too)")
+    trees.add_argument("first")
+    trees.add_argument("second")
+    trees.add_argument("--folders", nargs="*", default=list(FOLDERS), help="under results/reference/")
+    trees.add_argument("--replicas", type=int, default=2)
     gather = commands.add_parser("collect", help="copy a sweep's small files for the report")
     gather.add_argument("sweep_root")
     gather.add_argument("destination")
@@ -268,6 +292,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"collected {collect(Path(args.sweep_root), Path(args.destination))} run(s) into {args.destination}",
               file=sys.stderr)
         return 0
+    if args.command == "trees":
+        return _compare_trees(Path(args.first).resolve(), Path(args.second).resolve(), args.folders, args.replicas)
     checked = [(reference, reference.check()) for reference in references(args.folders)]
     for reference, results in checked:
         for result in results:
