@@ -54,7 +54,7 @@ def test_the_estimate_prices_every_job_of_the_pool():
     fig5 = [job for job in jobs if job["preset"] == "fig5_discrete"]
     assert [job["overrides"][1] for job in fig5] == ["opponent=random", "opponent=dijkstra", "opponent=centralized"]
     assert all(job["replicas"] == 3 for job in jobs)  # each job trains seeds 0, 1, 2 in one process
-    assert (fig5[0]["iterations"], fig5[0]["eval_every"], fig5[0]["checkpoint_every"]) == (5000, 50, 50)
+    assert (fig5[0]["iterations"], fig5[0]["eval_every"], fig5[0]["checkpoint_every"]) == (5000, 50, 250)
     assert all(job["iterations"] == 5000 for job in jobs if "continuous" in job["preset"] or job["preset"] == "fig8")
     sizes = [job["size"] for job in jobs]
     assert sizes == sorted(sizes, reverse=True)  # the largest first
