@@ -215,11 +215,12 @@ def status_table(checked: list[tuple[Reference, list[Comparison]]]) -> str:
 # ---- collecting a sweep's small files -------------------------------------------------------------------------------
 
 
-def collect(sweep_root: Path, destination: Path) -> int:
+def collect(sweep_root: Path, destination: Path, policy_seeds: Sequence[int] = (0,)) -> int:
     """Copy what the report reads of every finished run under ``sweep_root`` into ``destination`` (same relative
-    paths); returns the number of runs copied."""
+    paths), the ``policy.pt`` of the runs of ``policy_seeds`` among it (Fig. 10 replays a condition's first seed;
+    a TRPO policy is ~22 kB); returns the number of runs copied."""
     from sidewalk.report.runs import SWEEP_MARKER, find_run_folders
-    from sidewalk.run_folder import CONFIG, HISTORY, METRICS, SUMMARY, write_compressed_metrics
+    from sidewalk.run_folder import CONFIG, HISTORY, METRICS, POLICY, SUMMARY, write_compressed_metrics
 
     sweep_root, destination = Path(sweep_root), Path(destination)
     copied = 0
@@ -228,7 +229,8 @@ def collect(sweep_root: Path, destination: Path) -> int:
             continue
         target = destination / run_dir.relative_to(sweep_root)
         target.mkdir(parents=True, exist_ok=True)
-        for name in (CONFIG, SUMMARY, HISTORY):
+        seed = json.loads((run_dir / SUMMARY).read_text()).get("seed")
+        for name in (CONFIG, SUMMARY, HISTORY, *([POLICY] if seed in policy_seeds else [])):
             if (run_dir / name).exists():
                 shutil.copy2(run_dir / name, target / name)
         metrics = pd.read_csv(run_dir / METRICS)
@@ -277,6 +279,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     gather = commands.add_parser("collect", help="copy a sweep's small files for the report")
     gather.add_argument("sweep_root")
     gather.add_argument("destination")
+    gather.add_argument("--policies-of-seed", type=int, nargs="*", default=[0], metavar="SEED",
+                        help="copy these seeds' policy.pt too, for the report's trajectories (default: 0)")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.command == "probe":
         from sidewalk.run_folder import git_revision
@@ -289,8 +293,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"wrote {reference.folder / PROBE}, made at {reference.meta['probe_made_at']}", file=sys.stderr)
         return 0
     if args.command == "collect":
-        print(f"collected {collect(Path(args.sweep_root), Path(args.destination))} run(s) into {args.destination}",
-              file=sys.stderr)
+        copied = collect(Path(args.sweep_root), Path(args.destination), args.policies_of_seed)
+        print(f"collected {copied} run(s) into {args.destination}", file=sys.stderr)
         return 0
     if args.command == "trees":
         return _compare_trees(Path(args.first).resolve(), Path(args.second).resolve(), args.folders, args.replicas)

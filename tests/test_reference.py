@@ -88,7 +88,7 @@ def test_collected_runs_read_back_as_the_runs(tmp_path):
     assert collect(sweep.parent, tmp_path / "runs") == 1
     copied = tmp_path / "runs" / "fig0" / "job" / "seed0"
     assert sorted(p.name for p in copied.iterdir()) == ["config.yaml", "history.jsonl", "metrics.csv.xz",
-                                                        "summary.json"]
+                                                        "policy.pt", "summary.json"]  # seed 0: Fig. 10 replays it
     original, kept = load_run(sweep / "job" / "seed0"), load_run(copied)
     assert kept.family == original.family == "fig0" and kept.summary == original.summary
     diagnostics = [c for c in original.metrics.columns if c not in kept.metrics.columns]
