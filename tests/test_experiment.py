@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -84,11 +85,11 @@ CONTINUOUS_SETUP = [
     [(GRID_SETUP, signal.SIGKILL), (CONTINUOUS_SETUP, signal.SIGKILL), (GRID_SETUP, signal.SIGTERM)],
     ids=["dqn-grid-killed", "trpo-continuous-killed", "dqn-grid-preempted"],
 )
-def test_stopped_run_resumes_to_the_same_metrics(tmp_path, setup, stop):
+def test_stopped_run_resumes_to_the_same_metrics(tmp_path, uninterrupted_run, setup, stop):
     # SIGKILL: the run resumes from its last periodic checkpoint. SIGTERM (a scheduler's pre-emption): the run
     # writes a checkpoint at the end of the iteration it is in and exits with 128 + 15.
     overrides = [*RUN, "iterations=40", "checkpoint_every=5", "eval_every=10", *setup]
-    main_py(*overrides, f"hydra.run.dir={tmp_path / 'whole'}", timeout=600)
+    whole = uninterrupted_run(overrides)
 
     stopped = tmp_path / "stopped"
     process = subprocess.Popen(
@@ -108,7 +109,7 @@ def test_stopped_run_resumes_to_the_same_metrics(tmp_path, setup, stop):
         assert len(pd.read_csv(stopped / "metrics.csv")) == at  # the metrics end where the checkpoint does
 
     main_py(*overrides, f"hydra.run.dir={stopped}", "resume=true", timeout=600)
-    pd.testing.assert_frame_equal(metrics(stopped), metrics(tmp_path / "whole"))
+    pd.testing.assert_frame_equal(metrics(stopped), metrics(whole))
 
 
 def test_resume_refuses_another_config_naming_each_key(tmp_path):
@@ -140,14 +141,14 @@ def test_a_corrupt_checkpoint_falls_back_to_the_previous_one(tmp_path):
     main_py(*TINY, "iterations=12", f"hydra.run.dir={tmp_path / 'whole'}")
     run = tmp_path / "run"
     main_py(*TINY, "iterations=8", "keep_checkpoint=all", f"hydra.run.dir={run}")  # checkpoints at 8, prev at 4
+    both = tmp_path / "both"
+    shutil.copytree(run, both)
     data = (run / "checkpoint.pt").read_bytes()
     (run / "checkpoint.pt").write_bytes(data[: len(data) // 2])  # torn: the disk filled, the node died
     result = main_py(*TINY, "iterations=12", "resume=true", f"hydra.run.dir={run}")
     assert "checkpoint.pt is unreadable" in result.stderr
     pd.testing.assert_frame_equal(metrics(run), metrics(tmp_path / "whole"))  # resumed from iteration 4, exactly
 
-    both = tmp_path / "both"
-    main_py(*TINY, "iterations=8", "keep_checkpoint=all", f"hydra.run.dir={both}")
     for name in ("checkpoint.pt", "checkpoint.prev.pt"):
         (both / name).write_bytes(b"not a checkpoint")
     result = main_py(*TINY, "iterations=12", "resume=true", f"hydra.run.dir={both}", check=False)

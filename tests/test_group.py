@@ -113,9 +113,9 @@ def test_replica_folders_are_ordinary_run_folders(tmp_path):
 
 
 @pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGTERM], ids=["killed", "preempted"])
-def test_a_stopped_group_resumes_to_the_same_metrics(tmp_path, stop):
+def test_a_stopped_group_resumes_to_the_same_metrics(tmp_path, uninterrupted_run, stop):
     overrides = [*SHORT, *TRPO_CONTINUOUS, "iterations=24", "checkpoint_every=3", "eval_every=6", "replicas=2"]
-    main_py(*overrides, f"hydra.run.dir={tmp_path / 'whole'}")
+    whole = uninterrupted_run(overrides)
     stopped = tmp_path / "stopped"
     process = subprocess.Popen([sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={stopped}"],
                                cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -132,7 +132,7 @@ def test_a_stopped_group_resumes_to_the_same_metrics(tmp_path, stop):
         assert len(pd.read_csv(replica_dir(stopped, 1) / "metrics.csv")) == at
     main_py(*overrides, f"hydra.run.dir={stopped}", "resume=true")
     for seed in (0, 1):
-        pd.testing.assert_frame_equal(metrics(replica_dir(stopped, seed)), metrics(replica_dir(tmp_path / "whole", seed)))
+        pd.testing.assert_frame_equal(metrics(replica_dir(stopped, seed)), metrics(replica_dir(whole, seed)))
 
 
 def test_bad_replicas_is_one_error_line(tmp_path):

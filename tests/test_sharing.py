@@ -127,13 +127,14 @@ def test_a_missing_or_corrupt_partner_is_one_error_line(shared_run, tmp_path):
 
 def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_one_leaves_no_lock(tmp_path):
     run = tmp_path / "run"
-    overrides = [*TINY, "iterations=400", f"hydra.run.dir={run}"]
+    overrides = [*TINY, "iterations=40", f"hydra.run.dir={run}"]
     first = subprocess.Popen([sys.executable, "runners/main.py", *overrides], cwd=ROOT,
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.time() + 300
         while not (run / "checkpoint.pt").exists() and first.poll() is None and time.time() < deadline:
-            time.sleep(0.05)
+            time.sleep(0.02)
+        first.send_signal(signal.SIGSTOP)  # paused, still holding the folder, however long the second takes
         assert first.poll() is None, "the first run ended before the second could ask for its folder"
         second = run_py("runners/main.py", *overrides, "resume=true")
         one_error_line(second, f"pid {first.pid}", "in use")
