@@ -30,8 +30,8 @@ from omegaconf.errors import OmegaConfBaseException
 
 from sidewalk import run_folder
 from sidewalk.config import register_schemas, validate
-from sidewalk.opponents.policy import check_partner_of
 from sidewalk.hydra_callbacks import ERROR_FILE
+from sidewalk.opponents.policy import check_partner_of
 from sidewalk.paths import CONFIG_DIR
 
 register_schemas()

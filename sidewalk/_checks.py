@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -16,7 +17,7 @@ def check_range(
         raise TypeError(f"{name}={value!r} must be a number")
     too_low = low is not None and (value <= low if low_open else value < low)
     too_high = high is not None and value > high
-    if too_low or too_high or value != value:  # value != value catches NaN
+    if too_low or too_high or math.isnan(value):
         lo = "(-inf" if low is None else f"({low}" if low_open else f"[{low}"
         hi = "+inf)" if high is None else f"{high}]"
         raise ValueError(f"{name}={value!r} is out of range; valid: {lo}, {hi}")

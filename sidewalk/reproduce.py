@@ -271,7 +271,7 @@ def parse_options(argv: Sequence[str]) -> argparse.Namespace:
         if preset not in known:
             parser.error(f"--presets {preset}: not a preset of conf/experiment/ (presets: {', '.join(known)})")
     for override in args.overrides:
-        if override.startswith("hydra.sweep.dir=") or override.startswith("hydra/launcher="):
+        if override.startswith(("hydra.sweep.dir=", "hydra/launcher=")):
             parser.error(f"{override}: the pool places and launches the jobs itself (use --out and --processes)")
     return args
 
@@ -280,7 +280,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_options(sys.argv[1:] if argv is None else argv)
     try:
         queue = jobs(args.presets, args.scale, args.overrides)
-    except Exception as error:  # a config Hydra cannot compose: one line, before any compute
+    except Exception as error:  # noqa: BLE001 -- a config Hydra cannot compose: one line, before any compute
         print(f"error: {str(error).splitlines()[0]}", file=sys.stderr)
         return 2
     if args.list:

@@ -24,7 +24,7 @@ from sidewalk.envs.unicycle import ContinuousParams
 ENV_FIELDS_SET_ELSEWHERE = ("noise", "rewards")
 
 
-SCHEMA_TYPES = {"int": int, "float": float, "str": str, "bool": bool, "tuple[int, ...] | None": Optional[list[int]]}
+SCHEMA_TYPES = {"int": int, "float": float, "str": str, "bool": bool, "tuple[int, ...] | None": Optional[list[int]]}  # noqa: UP045 -- OmegaConf reads typing.Optional, not X | None
 
 
 def _mutable_schema(name: str, params_cls: type, extra: list[tuple], exclude: tuple[str, ...] = ()) -> type:

@@ -131,7 +131,7 @@ def test_bad_overrides_fail_naming_the_value(overrides, named):
 def test_cli_rejects_bad_input_before_compute(tmp_path, override, named):
     result = subprocess.run(
         [sys.executable, "runners/main.py", override, f"hydra.run.dir={tmp_path}/run"],
-        cwd=ROOT, capture_output=True, text=True, timeout=120,
+        cwd=ROOT, capture_output=True, text=True, timeout=120, check=False,
     )
     assert result.returncode != 0
     assert named in result.stderr + result.stdout

@@ -138,7 +138,7 @@ def _batched_linear(weight: torch.Tensor, bias: torch.Tensor | None, x: torch.Te
     return x @ transposed if bias is None else torch.baddbmm(bias.unsqueeze(1), x, transposed)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _batched_rounds_as_linear(replicas: int, rows: int, in_features: int, out_features: int, bias: bool,
                               dtype: torch.dtype, device: str) -> bool:
     """Whether one batched matmul gives each of ``replicas`` replicas exactly its own ``F.linear``, forward, first
@@ -561,7 +561,6 @@ class StackedTRPO(StackedUpdate):
         return super().supported(algos) and StackedAdam.supported([algo.value_optimizer for algo in algos])
 
     def update(self, batches: Sequence[TensorDictBase], streams: ReplicaStreams) -> list[dict[str, float]]:
-        cfg = self.config
         self.policy, self.keys = self._policy()
         self.value = StackedNetwork([algo.value.module for algo in self.algos])
         flat = self._flat(self._advantages(batches))
