@@ -177,6 +177,12 @@ class Reference:
     def jobs(self) -> dict[str, list[str]]:
         return self.meta["jobs"]
 
+    def committed_jobs(self) -> list[str]:
+        """The jobs whose finished runs lie in the repository (``collect``): the report is made at this commit only
+        when every job is among them."""
+        runs = self.folder / self.meta.get("runs", "runs")
+        return [job for job in self.jobs if any((runs / job).rglob("summary.json"))]
+
     def recorded_probe(self) -> pd.DataFrame:
         path = self.folder / PROBE
         if not path.exists():
@@ -202,13 +208,17 @@ def references(names: Sequence[str] = FOLDERS) -> list[Reference]:
 def status_table(checked: list[tuple[Reference, list[Comparison]]]) -> str:
     """The freshness page: per reference folder, its commit and whether today's code gives the same probe."""
     lines = [
-        "| reference | made at | jobs | today's code gives the same probe |",
-        "| --- | --- | ---: | --- |",
+        "| reference | made at | jobs | their runs in the repository | today's code gives the same probe |",
+        "| --- | --- | ---: | --- | --- |",
     ]
     for reference, results in checked:
         changed = [result for result in results if not result.same]
         verdict = "yes" if not changed else "**no**: " + "; ".join(f"`{r.job}`: {r.detail}" for r in changed)
-        lines.append(f"| `{reference.name}/` | commit `{reference.meta['commit'][:7]}` | {len(results)} | {verdict} |")
+        committed = len(reference.committed_jobs())
+        runs = "all" if committed == len(reference.jobs) else (
+            f"**{committed} of {len(reference.jobs)}**: its report still shows the runs of an earlier commit")
+        lines.append(f"| `{reference.name}/` | commit `{reference.meta['commit'][:7]}` | {len(results)} | {runs} "
+                     f"| {verdict} |")
     return "\n".join(lines) + "\n"
 
 

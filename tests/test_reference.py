@@ -52,6 +52,9 @@ def test_the_freshness_page_says_what_the_probes_say():
     for reference in references():
         (row,) = [line for line in page.splitlines() if line.startswith(f"| `{reference.name}/`")]
         assert f"commit `{reference.meta['commit'][:7]}`" in row
+        committed = len(reference.committed_jobs())
+        assert ("| all |" in row) == (committed == len(reference.jobs)), f"{STATUS} is older than the runs: {row!r}"
+        assert committed == len(reference.jobs) or f"**{committed} of {len(reference.jobs)}**" in row, row
         # The probes are checked job by job above; a folder's "yes" is true when each of its jobs passes there.
         assert row.rstrip(" |").endswith("yes"), f"{STATUS} says {row!r}: re-run python -m sidewalk.reference check " \
                                                  "--write-status"
@@ -67,8 +70,9 @@ def test_a_change_in_what_a_job_computes_is_caught_and_named():
     changed = compare(recorded, today)[0]
     assert not changed.same and changed.detail == "eval/ego/return at iteration 2: recorded 0.7, today 0.8"
     assert "no longer written" in compare(recorded, today.drop(columns="eval/ego/return"))[0].detail
-    table = status_table([(Reference(REFERENCE_ROOT, {"commit": "0" * 40}), [changed])])
+    table = status_table([(Reference(REFERENCE_ROOT, {"commit": "0" * 40, "jobs": {"a": [], "b": []}}), [changed])])
     assert "**no**: `a`: eval/ego/return" in table
+    assert "**0 of 2**: its report still shows the runs of an earlier commit" in table
 
 
 def test_collected_runs_read_back_as_the_runs(tmp_path):
