@@ -106,3 +106,20 @@ def test_a_reference_json_names_every_job_it_ran():
         meta = json.loads((REFERENCE_ROOT / folder / META).read_text())
         assert meta["jobs"] and all(overrides[0].startswith("+experiment=") for overrides in meta["jobs"].values())
         assert (REFERENCE_ROOT / folder / PROBE).exists()
+
+
+def test_the_step_cost_experiment_is_fig5s_centralized_job_at_other_step_costs():
+    """Its SPEC step cost is fig5_continuous's centralized job (the pool runs it once); the others differ from it in
+    reward.c_step alone."""
+    from sidewalk.reproduce import jobs
+
+    queue = {job.folder: job for job in jobs(["fig5_continuous", "step_cost_centralized"], overrides=["replicas=5"])}
+    own = sorted(folder for folder in queue if folder.startswith("step_cost_centralized/"))
+    assert own == ["step_cost_centralized/1_reward.c_step=-0.001", "step_cost_centralized/2_reward.c_step=0"]
+    spec = json.loads(queue["fig5_continuous/2_opponent=centralized"].config_key)
+    for folder in own:
+        config = json.loads(queue[folder].config_key)
+        assert config["reward"].pop("c_step") != spec["reward"]["c_step"] == -0.01
+        assert {**config, "reward": {**config["reward"], "c_step": -0.01}} == spec
+    reference = Reference.load(REFERENCE_ROOT)
+    assert set(own) <= set(reference.jobs), "the reference runs the step-cost experiment too"
