@@ -248,8 +248,8 @@ def collect(sweep_root: Path, destination: Path, policy_seeds: Sequence[int] = (
         write_compressed_metrics(metrics[kept], target)
         copied += 1
     for marker in sweep_root.rglob(SWEEP_MARKER):
-        (destination / marker.relative_to(sweep_root)).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(marker, destination / marker.relative_to(sweep_root))
+        if (destination / marker.relative_to(sweep_root)).parent.exists():  # a sweep none of whose runs finished stays
+            shutil.copy2(marker, destination / marker.relative_to(sweep_root))
     return copied
 
 

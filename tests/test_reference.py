@@ -89,7 +89,11 @@ def test_collected_runs_read_back_as_the_runs(tmp_path):
 
     Trial(validate(cfg), sweep / "job" / "seed0", OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
     (sweep / "multirun.yaml").write_text("{}\n")
+    unfinished = tmp_path / "sweeps" / "fig1"  # a sweep still running: nothing of it is collected
+    (unfinished / "job" / "seed0").mkdir(parents=True)
+    (unfinished / "multirun.yaml").write_text("{}\n")
     assert collect(sweep.parent, tmp_path / "runs") == 1
+    assert (tmp_path / "runs" / "fig0" / "multirun.yaml").exists() and not (tmp_path / "runs" / "fig1").exists()
     copied = tmp_path / "runs" / "fig0" / "job" / "seed0"
     assert sorted(p.name for p in copied.iterdir()) == ["config.yaml", "history.jsonl", "metrics.csv.xz",
                                                         "policy.pt", "summary.json"]  # seed 0: Fig. 10 replays it
