@@ -264,6 +264,9 @@ def parse_options(argv: Sequence[str]) -> argparse.Namespace:
             args.scale = "full"
         else:
             parser.error(f"scale {args.scale!r}: choose one of {', '.join(SCALES)}")
+    # --presets takes every word after it: an override given after the presets (a=b) is an override all the same.
+    args.overrides += [word for word in args.presets if "=" in word]
+    args.presets = [word for word in args.presets if "=" not in word] or list(PRESETS)
     if args.processes < 1:
         parser.error(f"--processes {args.processes}: must be at least 1")
     known = sorted(path.stem for path in (CONFIG_DIR / "experiment").glob("*.yaml"))

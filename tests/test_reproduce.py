@@ -1,0 +1,67 @@
+"""The reproduction pool (python -m sidewalk.reproduce, runners/reproduce.sh): its options, its jobs (each config once,
+largest first) and how it reads a job's folder to skip, resume or restart it."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from sidewalk.reproduce import PRESETS, job_state, jobs, main, parse_options
+from sidewalk.run_folder import CHECKPOINT, GROUP_DIR, SUMMARY
+
+
+def test_overrides_may_come_before_after_or_among_the_options():
+    before = parse_options(["full", "seed=0", "replicas=5", "--presets", "fig8", "step_cost_centralized"])
+    after = parse_options(["--presets", "fig8", "step_cost_centralized", "seed=0", "replicas=5"])
+    for args in (before, after):
+        assert (args.scale, args.presets, args.overrides) == ("full", ["fig8", "step_cost_centralized"],
+                                                              ["seed=0", "replicas=5"])
+    assert parse_options(["replicas=5"]).presets == list(PRESETS)
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["--presets", "fig9"], "--presets fig9: not a preset"),
+    (["--processes", "0"], "--processes 0"),
+    (["huge"], "scale 'huge'"),
+    (["hydra.sweep.dir=/tmp/x"], "the pool places and launches the jobs itself"),
+])
+def test_bad_options_are_one_error_naming_the_value(capsys, argv, named):
+    with pytest.raises(SystemExit) as stopped:
+        parse_options(argv)
+    assert stopped.value.code == 2 and named in capsys.readouterr().err
+
+
+def test_each_config_runs_once_largest_first(capsys):
+    queue = jobs(["fig6_continuous", "fig8"])
+    folders = [job.folder for job in queue]
+    assert "fig8/0_reward=explicit" not in folders  # Fig. 6's noise 0.01 is the very config
+    assert folders.count("fig8/1_reward=implicit") == 1 and len(folders) == 4
+    assert [job.size for job in queue] == sorted((job.size for job in queue), reverse=True)
+    assert main(["--list", "--presets", "fig6_continuous", "fig8"]) == 0
+    listed = [line.split("\t")[0] for line in capsys.readouterr().out.splitlines()]
+    assert listed == folders
+
+
+def test_a_jobs_folder_says_whether_to_skip_resume_or_restart_it(tmp_path):
+    (job,) = [job for job in jobs(["fig8"]) if job.folder == "fig8/1_reward=implicit"]
+    group = dataclasses.replace(job, replicas=2, seed=0)
+    folder = tmp_path / "job"
+    assert job_state(folder, group) == "new"
+    (folder / "seed0").mkdir(parents=True)
+    assert job_state(folder, group) == "stale"  # killed before its first checkpoint: started again
+    (folder / GROUP_DIR).mkdir()
+    (folder / GROUP_DIR / CHECKPOINT).write_bytes(b"")
+    assert job_state(folder, group) == "resume"
+    (folder / GROUP_DIR / CHECKPOINT).unlink()
+    for seed in (0, 1):
+        (folder / f"seed{seed}").mkdir(exist_ok=True)
+        (folder / f"seed{seed}" / SUMMARY).write_text("{}")
+    assert job_state(folder, group) == "done"
+    lone, alone = dataclasses.replace(job, replicas=1), tmp_path / "lone"  # a lone run is its own folder
+    alone.mkdir()
+    (alone / CHECKPOINT).write_bytes(b"")
+    assert job_state(alone, lone) == "resume"
+    (alone / CHECKPOINT).unlink()
+    (alone / SUMMARY).write_text("{}")
+    assert job_state(alone, lone) == "done"
