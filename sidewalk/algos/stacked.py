@@ -480,29 +480,21 @@ class StackedUpdate(abc.ABC):
         """Replica r learns from ``batches[r]`` (its collector batch, (B, T) with time last, as ``algo.update``
         takes it) with its random draws from ``streams``' stream r; returns each replica's logs."""
 
-    def _stack(self, batches: Sequence[TensorDictBase]) -> TensorDictBase:
-        """The replicas' batches as one (R, B, T) tensordict of ``BATCH_KEYS``; counts their frames."""
-        if len(batches) != len(self.algos):
-            raise ValueError(f"{len(batches)} batches for {len(self.algos)} replicas")
-        for algo, batch in zip(self.algos, batches):
-            algo.frames_seen += batch.numel()
-        data = TensorDict(batch_size=(len(batches), *batches[0].batch_size), device=self.device)
-        for key in BATCH_KEYS:
-            data.set(key, torch.stack([batch.get(key).to(self.device) for batch in batches]))
-        return data
-
     @torch.no_grad()
     def _advantages(self, batches: Sequence[TensorDictBase]) -> TensorDictBase:
-        """Every replica's GAE by its own module (its value network inside) on its own batch, stacked (R, B, T):
-        the very arithmetic of its lone update, whose value network TorchRL runs under ``vmap`` and whose
-        discounted sums run through a matmul, either of which a batched computation could round otherwise."""
-        stacked = self._stack(batches)  # counts the frames, checks the replicas
+        """Every replica's GAE by its own module (its value network inside) on a fresh copy of its own batch's
+        ``BATCH_KEYS``, stacked (R, B, T); counts the frames. The very arithmetic of its lone update, whose value
+        network TorchRL runs under ``vmap`` and whose discounted sums run through a matmul, either of which a batched
+        computation could round otherwise."""
+        if len(batches) != len(self.algos):
+            raise ValueError(f"{len(batches)} batches for {len(self.algos)} replicas")
         own = []
-        for replica, algo in enumerate(self.algos):
-            batch = TensorDict({key: stacked.get(key)[replica].clone() for key in BATCH_KEYS},
-                               batch_size=stacked.batch_size[1:], device=self.device)
-            algo.advantage(batch)
-            own.append(batch)
+        for algo, batch in zip(self.algos, batches):
+            algo.frames_seen += batch.numel()
+            copy = TensorDict({key: batch.get(key).to(self.device).clone(memory_format=torch.contiguous_format)
+                               for key in BATCH_KEYS}, batch_size=batch.batch_size, device=self.device)
+            algo.advantage(copy)
+            own.append(copy)
         return torch.stack(own)
 
     @staticmethod
