@@ -248,7 +248,7 @@ def collect(sweep_root: Path, destination: Path, policy_seeds: Sequence[int] = (
         write_compressed_metrics(metrics[kept], target)
         copied += 1
     for marker in sweep_root.rglob(SWEEP_MARKER):
-        if (destination / marker.relative_to(sweep_root)).parent.exists():  # a sweep none of whose runs finished stays
+        if (destination / marker.relative_to(sweep_root)).parent.exists():  # a sweep with no finished run stays out
             shutil.copy2(marker, destination / marker.relative_to(sweep_root))
     return copied
 
@@ -265,7 +265,6 @@ def _compare_trees(first: Path, second: Path, folders: Sequence[str], replicas: 
             differ += not result.same
             print(f"{reference.name}/ {result.job}: {'same' if result.same else 'DIFFERENT'} ({result.detail})")
     return 1 if differ else 0
-
 
 
 def main(argv: Sequence[str] | None = None) -> int:

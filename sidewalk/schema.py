@@ -24,7 +24,11 @@ from sidewalk.envs.unicycle import ContinuousParams
 ENV_FIELDS_SET_ELSEWHERE = ("noise", "rewards")
 
 
-SCHEMA_TYPES = {"int": int, "float": float, "str": str, "bool": bool, "tuple[int, ...] | None": Optional[list[int]]}  # noqa: UP045 -- OmegaConf reads typing.Optional, not X | None
+# OmegaConf reads typing.Optional, not X | None.
+SCHEMA_TYPES = {
+    "int": int, "float": float, "str": str, "bool": bool,
+    "tuple[int, ...] | None": Optional[list[int]],  # noqa: UP045
+}
 
 
 def _mutable_schema(name: str, params_cls: type, extra: list[tuple], exclude: tuple[str, ...] = ()) -> type:

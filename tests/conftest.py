@@ -23,7 +23,8 @@ def uninterrupted_run(tmp_path_factory):
         if key not in finished:
             folder = tmp_path_factory.mktemp("uninterrupted")
             result = subprocess.run([sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={folder}"],
-                                    cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=600, check=False)
+                                    cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=600,
+                                    check=False)
             assert result.returncode == 0, result.stderr
             finished[key] = folder
         return finished[key]

@@ -22,8 +22,8 @@ through a matmul); the distribution math runs per replica where a replica's elem
 replica's own scalars; the scalars a replica's decisions hinge on (the conjugate-gradient dot products, the line
 search's tests, the advantage statistics, the logs) are computed per replica with the loop's kernels. Measured
 (``tests/test_stacked_updates.py``): TRPO and PPO on vectors and on images are bit-identical to the loop, at the
-default sizes and at small odd ones (on an AMD EPYC, where the BLAS rounds by alignment), hence a replica's results do not depend on
-R or on the other replicas.
+default sizes and at small odd ones (on an AMD EPYC, where the BLAS rounds by alignment), hence a replica's results
+do not depend on R or on the other replicas.
 """
 
 from __future__ import annotations

@@ -374,8 +374,8 @@ def trajectory_section(
     md += [
         (
             "Each panel replays one run (of the seeds whose policy is kept, the one with the median final success) "
-            "with its checkpoint, on the same "
-            "worlds and seed as its final evaluation, and draws its first episodes (○ start, ★ goal, ✕ collision)."
+            "with its checkpoint, on the same worlds and seed as its final evaluation, and draws its first episodes "
+            "(○ start, ★ goal, ✕ collision)."
         ),
         "",
     ]
