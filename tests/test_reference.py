@@ -112,18 +112,42 @@ def test_a_reference_json_names_every_job_it_ran():
         assert (REFERENCE_ROOT / folder / PROBE).exists()
 
 
-def test_the_step_cost_experiment_is_fig5s_centralized_job_at_other_step_costs():
-    """Its SPEC step cost is fig5_continuous's centralized job (the pool runs it once); the others differ from it in
-    reward.c_step alone."""
+def _config(job) -> dict:
+    return json.loads(job.config_key)
+
+
+def _but(config: dict, **settings) -> dict:
+    """``config`` with ``settings`` (dotted keys one level deep: ``reward__c_step``) set."""
+    config = json.loads(json.dumps(config))
+    for key, value in settings.items():
+        *parents, leaf = key.split("__")
+        node = config
+        for parent in parents:
+            node = node[parent]
+        node[leaf] = value
+    return config
+
+
+def test_the_claim_experiments_vary_their_papers_jobs_in_what_they_test_alone():
+    """The step-cost experiment is fig5_continuous's centralized job at other step costs, Fig. 8 under noise is
+    fig6_continuous's jobs with either reward; both at their own budgets, and both in the reference."""
     from sidewalk.reproduce import jobs
 
-    queue = {job.folder: job for job in jobs(["fig5_continuous", "step_cost_centralized"], overrides=["replicas=5"])}
-    own = sorted(folder for folder in queue if folder.startswith("step_cost_centralized/"))
-    assert own == ["step_cost_centralized/1_reward.c_step=-0.001", "step_cost_centralized/2_reward.c_step=0"]
-    spec = json.loads(queue["fig5_continuous/2_opponent=centralized"].config_key)
-    for folder in own:
-        config = json.loads(queue[folder].config_key)
-        assert config["reward"].pop("c_step") != spec["reward"]["c_step"] == -0.01
-        assert {**config, "reward": {**config["reward"], "c_step": -0.01}} == spec
+    queue = {job.folder: job for job in jobs(["fig5_continuous", "fig6_continuous", "fig8", "step_cost_centralized",
+                                              "fig8_noise"], overrides=["replicas=5"])}
+    step_costs = sorted(folder for folder in queue if folder.startswith("step_cost_centralized/"))
+    assert [_config(queue[folder])["reward"]["c_step"] for folder in step_costs] == [-0.01, -0.001, 0]
+    centralized = _config(queue["fig5_continuous/2_opponent=centralized"])
+    for folder in step_costs:
+        config = _config(queue[folder])
+        assert _but(centralized, reward__c_step=config["reward"]["c_step"], iterations=1000) == config
+    noisy = sorted(folder for folder in queue if folder.startswith("fig8_noise/"))
+    assert len(noisy) == 4
+    implicit = _config(queue["fig8/1_reward=implicit"])["reward"]
+    for folder in noisy:
+        config = _config(queue[folder])
+        paper = _config(queue[f"fig6_continuous/{1 if config['noise'] == 0.5 else 2}_noise={config['noise']}"])
+        reward = implicit if config["reward"]["name"] == "implicit" else paper["reward"]
+        assert _but(paper, reward=reward, iterations=500) == config
     reference = Reference.load(REFERENCE_ROOT)
-    assert set(own) <= set(reference.jobs), "the reference runs the step-cost experiment too"
+    assert set(step_costs + noisy) <= set(reference.jobs), "the reference runs the claim experiments too"

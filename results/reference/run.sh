@@ -7,10 +7,12 @@
 # Every preset of conf/experiment/ that runners/reproduce.sh runs, at the paper's budgets (SPEC §3): 5000 iterations for
 # the agent comparisons (Fig. 5/7, both domains), 2000 for the grid's noise study and 5000 for the continuous one
 # (Fig. 6), 5000 for Fig. 8; 5 seeds each (seed=0 replicas=5: seeds 0-4 trained in one process per condition). Fig. 8's
-# explicit reward at ε = 0.01 is the very config of Fig. 6's ε = 0.01 condition, so the pool runs it once. Then
-# step_cost_centralized: Fig. 5's centralized learner at step costs -0.001 and 0 (conf/experiment/ says why). One pool of
-# two jobs at a time, largest first, one torch thread each. A checkpoint every 250 iterations: a 5-seed DQN group's
-# checkpoint holds five replay buffers. Run it again after a kill: finished jobs are skipped, the others resume.
+# explicit reward at ε = 0.01 is the very config of Fig. 6's ε = 0.01 condition, so the pool runs it once. Then the
+# experiments behind the claims the paper's presets do not reproduce (conf/experiment/ says why):
+# step_cost_centralized (Fig. 5's centralized learner at step costs -0.01, -0.001 and 0) and fig8_noise (Fig. 8 at
+# ε = 0.5 and 1.5). One pool of two jobs at a time, largest first, one torch thread each. A checkpoint every 250
+# iterations: a 5-seed DQN group's checkpoint holds five replay buffers. Run it again after a kill: finished jobs are
+# skipped, the others resume.
 #
 # To keep every run on one code revision while the checkout moves on, run it from a worktree of that revision:
 #   git worktree add ../ref <commit> && REFERENCE_DIR=$PWD/results/sweeps/reference PYTHONPATH=../ref \
@@ -22,9 +24,9 @@ cd "$(dirname "$0")/../.."
 
 root="${REFERENCE_DIR:-results/sweeps/reference}"
 status=0
-# With the paper's presets, the experiment behind the unshaped-agent claim (its SPEC step cost is Fig. 5's job, run once).
 python -m sidewalk.reproduce full --out "$root" --processes 2 seed=0 replicas=5 checkpoint_every=250 \
-  --presets fig5_discrete fig5_continuous fig6_discrete fig6_continuous fig8 step_cost_centralized || status=1
+  --presets fig5_discrete fig5_continuous fig6_discrete fig6_continuous fig8 step_cost_centralized fig8_noise ||
+  status=1
 
 start=$(date +%s)
 python runners/report.py "$root" --out results/reference --preamble results/reference/notes.md --max-panels 12 ||
