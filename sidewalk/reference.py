@@ -181,7 +181,7 @@ class Reference:
         """The jobs whose finished runs lie in the repository (``collect``): the report is made at this commit only
         when every job is among them."""
         runs = self.folder / self.meta.get("runs", "runs")
-        return [job for job in self.jobs if any((runs / job).rglob("summary.json"))]
+        return [job for job in self.jobs if _has_runs(runs, job, self.jobs[job])]
 
     def recorded_probe(self) -> pd.DataFrame:
         path = self.folder / PROBE
@@ -199,6 +199,28 @@ class Reference:
             if not result.same and result.job in notes:
                 result.same, result.detail = True, f"differs ({result.detail}), explained: {notes[result.job]}"
         return results
+
+
+def _has_runs(runs: Path, job: str, overrides: Sequence[str]) -> bool:
+    """Whether ``runs`` holds a finished run of ``job``: in the job's own folder (the pool names it so), else, for a
+    sweep whose folders Hydra named by their overrides (one per seed), any run under the job's first folder whose
+    config is the job's but for the seed and bookkeeping keys."""
+    if (runs / job).is_dir():
+        return any((runs / job).rglob("summary.json"))
+    from omegaconf import OmegaConf
+
+    from sidewalk.report.conditions import BOOKKEEPING_KEYS
+    from sidewalk.report.runs import CONFIG, flatten
+    from sidewalk.reproduce import compose
+
+    def condition(config: dict[str, Any]) -> dict[str, Any]:
+        ignored = (*BOOKKEEPING_KEYS, "replicas")  # a group's replica is a lone run of its seed
+        return {k: v for k, v in flatten(config).items() if not any(k == i or k.startswith(f"{i}.") for i in ignored)}
+
+    wanted = condition(OmegaConf.to_container(compose(overrides), resolve=True))
+    domain = runs / Path(job).parts[0]
+    return any(condition(OmegaConf.to_container(OmegaConf.load(summary.parent / CONFIG), resolve=True)) == wanted
+               for summary in (domain.rglob("summary.json") if domain.is_dir() else ()))
 
 
 def references(names: Sequence[str] = FOLDERS) -> list[Reference]:

@@ -151,3 +151,19 @@ def test_the_claim_experiments_vary_their_papers_jobs_in_what_they_test_alone():
         assert _but(paper, reward=reward, iterations=500) == config
     reference = Reference.load(REFERENCE_ROOT)
     assert set(step_costs + noisy) <= set(reference.jobs), "the reference runs the claim experiments too"
+
+
+def test_a_job_whose_run_folders_hydra_named_counts_by_its_runs_config(tmp_path):
+    """The safe reference's sweeps name their run folders by their overrides (one per seed): a job counts as committed
+    where a run with its config lies under its domain's folder, and not where only other jobs' runs do."""
+    safe = Reference.load(REFERENCE_ROOT / "safe")
+    runs = tmp_path / "runs"
+    for summary in (safe.folder / "runs").rglob("summary.json"):
+        if "ppo_lagrangian" in str(summary.parent):
+            continue  # one job's runs left out
+        kept = runs / summary.parent.relative_to(safe.folder / "runs")
+        kept.mkdir(parents=True)
+        for name in ("summary.json", "config.yaml"):
+            (kept / name).write_bytes((summary.parent / name).read_bytes())
+    partial = Reference(tmp_path, {**safe.meta, "runs": "runs"})
+    assert sorted(partial.committed_jobs()) == sorted(job for job in safe.jobs if "ppo_lagrangian" not in job)
