@@ -16,6 +16,10 @@
 # To run every job on one code revision while the checkout moves on, run them in a worktree of that revision:
 #   git worktree add ../ref <commit> && REFERENCE_TREE=../ref REFERENCE_DIR=$PWD/results/sweeps/reference/safe \
 #     results/reference/safe/run.sh
+# then copy the runs' small files into results/reference/safe/runs/ and rebuild the report from them:
+#   python -m sidewalk.reference collect results/sweeps/reference/safe results/reference/safe/runs
+#   python runners/report.py results/reference/safe/runs --out results/reference/safe \
+#     --preamble results/reference/safe/notes.md
 set -uo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"  # this folder, where the report goes
 cd "${REFERENCE_TREE:-$here/../../..}"
