@@ -51,9 +51,9 @@ class TRPOConfig(AlgoConfig):
     """
 
     name: str = "trpo"
-    # Ours (baselines: 1024 frames from one env). With 1024 frames an iteration, 2 of 5 seeds of the centralized
-    # learner settled on one agent crashing out of the other's way (team success 0.00 at 500 iterations); with 2048,
-    # 5 of 5 reached 1.00. 128 worlds × 16 steps collect them for the cost of ~16 env steps.
+    # Ours (baselines: 1024 frames from one env): 128 worlds × 16 steps collect 2048 for the cost of ~16 env steps.
+    # The centralized learner still settles on one agent crashing out of the way on some seeds at any batch tried
+    # (1024: 2 of 5 at 500 iterations; 2048: 3 of 5 in results/reference/, whose notes give the step cost's part).
     frames_per_batch: int = 2048
     default_num_envs: int = 128
     gamma: float = 0.99  # baselines gamma

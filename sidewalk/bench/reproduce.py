@@ -3,7 +3,7 @@ budgets, continuous 5000 iterations included) estimated from per-iteration costs
 ``--processes`` runs at a time, optionally beside another revision measured the same way in the same call.
 
     python runners/bench.py reproduce                               # ~8 min: this checkout, 2 processes
-    python runners/bench.py reproduce --baseline 4549d80            # ~15 min: also the reference runs' revision
+    python runners/bench.py reproduce --baseline 681260b            # ~15 min: also the revision issue 31 measured
 
 Every distinct run of the presets that ``runners/reproduce.sh`` sweeps (the preset's sweep parameters, seeds
 aside: a seed changes what is learned, not what an iteration costs; a job that trains its seeds as one group,
