@@ -56,7 +56,6 @@ from sidewalk.opponents.policy import (
 SCRIPTED = "scripted"  # --partners shorthand: the domain's scripted opponents
 ROWS = "rows"  # --partners shorthand: every row's run folder
 DEFAULT_PARTNERS = (SCRIPTED, ROWS)
-BOOKKEEPING_KEYS = ("seed", "resume", "device", "torch_threads", "checkpoint_every", "logger")  # as the report's
 # The CSV's columns, in order (see ``crossplay``'s docstring).
 COLUMNS = (
     "row_run",
@@ -162,7 +161,7 @@ def load_player(path: str | Path) -> Player:
     """The learned policy in the run folder ``path`` (see ``find_runs``), its seed and condition."""
     from omegaconf import OmegaConf
 
-    from sidewalk.report.conditions import with_later_keys
+    from sidewalk.report.conditions import condition_config
     from sidewalk.report.runs import flatten
     from sidewalk.run_folder import CONFIG
 
@@ -175,10 +174,7 @@ def load_player(path: str | Path) -> Player:
     if (path / CONFIG).exists():
         config = OmegaConf.to_container(OmegaConf.load(path / CONFIG), resolve=True)
         seed = int(config["seed"]) if "seed" in config else None
-        flat = with_later_keys({
-            key: value for key, value in flatten(config).items()
-            if not any(key == k or key.startswith(f"{k}.") for k in BOOKKEEPING_KEYS)
-        })
+        flat = condition_config(flatten(config))
     if flat is None:  # policy.pt alone: its own description of the learner and its world
         flat = {"algo": dataclasses.asdict(partner.algo_config), "env": dataclasses.asdict(partner.env_params),
                 "opponent": partner.opponent, "ego": partner.ego}

@@ -209,17 +209,16 @@ def _has_runs(runs: Path, job: str, overrides: Sequence[str]) -> bool:
         return any((runs / job).rglob("summary.json"))
     from omegaconf import OmegaConf
 
-    from sidewalk.report.conditions import BOOKKEEPING_KEYS
+    from sidewalk.report.conditions import condition_config
     from sidewalk.report.runs import CONFIG, flatten
     from sidewalk.reproduce import compose
 
-    def condition(config: dict[str, Any]) -> dict[str, Any]:
-        ignored = (*BOOKKEEPING_KEYS, "replicas")  # a group's replica is a lone run of its seed
-        return {k: v for k, v in flatten(config).items() if not any(k == i or k.startswith(f"{i}.") for i in ignored)}
+    def condition(cfg: Any) -> dict[str, Any]:
+        return condition_config(flatten(OmegaConf.to_container(cfg, resolve=True)))
 
-    wanted = condition(OmegaConf.to_container(compose(overrides), resolve=True))
+    wanted = condition(compose([*overrides, "replicas=1"]))  # a group's replica writes its config as a lone run's
     domain = runs / Path(job).parts[0]
-    return any(condition(OmegaConf.to_container(OmegaConf.load(summary.parent / CONFIG), resolve=True)) == wanted
+    return any(condition(OmegaConf.load(summary.parent / CONFIG)) == wanted
                for summary in (domain.rglob("summary.json") if domain.is_dir() else ()))
 
 

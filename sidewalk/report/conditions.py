@@ -37,6 +37,12 @@ def _is_bookkeeping(key: str) -> bool:
     return any(key == k or key.startswith(f"{k}.") for k in BOOKKEEPING_KEYS)
 
 
+def condition_config(flat: dict[str, Any]) -> dict[str, Any]:
+    """A run's flat config as its condition: without bookkeeping keys, with ``with_later_keys``'s defaults (runs whose
+    condition configs are equal are seeds of one condition)."""
+    return with_later_keys({k: v for k, v in flat.items() if not _is_bookkeeping(k)})
+
+
 @dataclass
 class Condition:
     """Runs of one config that differ only in their seed (one run per seed)."""
@@ -106,7 +112,7 @@ def group_conditions(runs: Sequence[Run]) -> list[Condition]:
     shield) and numbered C1, C2, ..."""
     grouped: dict[str, Condition] = {}
     for run in runs:
-        flat = with_later_keys({k: v for k, v in run.flat.items() if not _is_bookkeeping(k)})
+        flat = condition_config(run.flat)
         key = json.dumps(sorted(flat.items()), default=str)
         condition = grouped.setdefault(key, Condition(key, flat, []))
         condition.runs.append(run)
