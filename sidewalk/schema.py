@@ -129,6 +129,20 @@ def room_side(*, _parent_: Any, _node_: Any) -> float | int:
     return env_cls.with_room(given)[side]
 
 
+# Self-play's progress shaping (reward.c_progress), per metre (continuous) or per grid cell: without it the
+# learners of `opponent=self` end with one agent walking home and the other never learning to (docs/guide/multiagent.md).
+SELFPLAY_PROGRESS = {"continuous": 0.1, "discrete": 0.02}
+
+
+def progress_default(*, _root_: Any) -> float:
+    """``${sidewalk.progress:}``, the default of ``reward.c_progress`` in ``conf/reward``: self-play's shaping
+    (``SELFPLAY_PROGRESS``) when every agent learns (``opponent=self``), else 0 (the paper's reward). A value given
+    on the command line or in a preset is taken as it is; the run's ``config.yaml`` records the number."""
+    if _root_.opponent.name != "self":
+        return 0.0
+    return SELFPLAY_PROGRESS[_root_.env.domain]
+
+
 def plugin_config_paths() -> list[str]:
     """``${sidewalk.searchpath:}``, Hydra's search path in ``conf/config.yaml``: the config folders that installed
     plug-ins declare (entry point group ``sidewalk.configs``, each naming a package that holds config groups), so
@@ -139,9 +153,10 @@ def plugin_config_paths() -> list[str]:
 
 
 def register_schemas() -> None:
-    """Put the schemas in Hydra's ConfigStore and the room resolver in OmegaConf (idempotent)."""
+    """Put the schemas in Hydra's ConfigStore and the resolvers in OmegaConf (idempotent)."""
     OmegaConf.register_new_resolver("sidewalk.room", room_side, replace=True)
     OmegaConf.register_new_resolver("sidewalk.searchpath", plugin_config_paths, replace=True)
+    OmegaConf.register_new_resolver("sidewalk.progress", progress_default, replace=True)
     store = ConfigStore.instance()
     store.store(name="experiment_schema", node=ExperimentSchema)
     store.store(group="schema/env", name="discrete", node=DiscreteEnvSchema)

@@ -64,6 +64,23 @@ def test_run_length_and_worlds_come_from_the_learner_unless_given(overrides, exp
             experiment.algo.frames_per_batch) == expected
 
 
+@pytest.mark.parametrize(
+    "overrides, algo, c_progress",
+    [
+        (["opponent=self"], "iql", 0.02),  # self-play learns as first asked for: a multi-agent learner, shaped
+        (["opponent=self", "env=continuous"], "ippo", 0.1),
+        (["opponent=self", "env=continuous", "algo=mappo", "reward=implicit"], "mappo", 0.1),
+        (["opponent=self", "reward.c_progress=0"], "iql", 0.0),  # the command line wins
+        (["+experiment=selfplay_door_continuous", "algo=mappo"], "mappo", 0.1),
+        ([], "dqn", 0.0),  # scripted partners keep the paper's learner and reward
+        (["env=continuous", "opponent=centralized"], "trpo", 0.0),
+    ],
+)
+def test_self_play_defaults_to_a_multiagent_learner_and_its_shaping(overrides, algo, c_progress):
+    cfg = composed(*overrides)
+    assert (cfg.algo.name, cfg.reward.c_progress) == (algo, c_progress)
+
+
 @pytest.mark.parametrize("name", ["random", "dijkstra", "prm"])
 def test_opponent_yaml_mirrors_the_constructor_defaults(name):
     import inspect
