@@ -15,7 +15,9 @@ the world's episode length in steps (per agent: steps until that agent was done)
 shortest distance from start to goal over the distance travelled, over agents that reached their goal (grid:
 Manhattan cells, the shortest grid path; continuous: metres to the edge of the goal radius); ``min_separation`` is the smallest distance
 between two agents in the world during the episode (grid: cells, Euclidean; continuous: centre to centre, m),
-averaged over episodes, counting only agents present in the world (``("world", "present")``).
+averaged over episodes, counting only agents present in the world (``("world", "present")``). ``episodes`` is the
+number of worlds, ``distinct_episodes`` how many different trajectories they played: at noise 0 in a fixed layout
+every world plays the same episode, so a rate is one episode's 0 or 1 and only seeds give it a spread.
 
 The scenarios' coordination metrics (paper §7): ``makespan`` is the steps until the last agent arrived, over
 episodes where every agent did (NaN if none did); ``deadlock_rate`` the fraction of episodes that timed out while no
@@ -70,6 +72,7 @@ class EpisodeRecord:
     deadlocked: np.ndarray | None = None  # (episodes,) bool
     trajectories: np.ndarray | None = None  # (T, k, N, 2) positions of the first k worlds, NaN once finished
     ego: int | None = None
+    distinct_episodes: int | None = None  # how many different trajectories the worlds played
     extras: dict = field(default_factory=dict)
 
 
@@ -137,6 +140,7 @@ class _EpisodeTally:
     pair: torch.Tensor  # (N, N): two different agents
     record_trajectories: int
     trajectory: list[np.ndarray]
+    episode_class: torch.Tensor  # (B,): worlds with one class have played the same trajectory so far
 
     @classmethod
     def begin(cls, env: EnvBase, world: TensorDictBase, record_trajectories: int) -> _EpisodeTally:
@@ -175,6 +179,7 @@ class _EpisodeTally:
             pair=~torch.eye(n_agents, dtype=torch.bool, device=device),
             record_trajectories=record_trajectories,
             trajectory=[start[:record_trajectories].cpu().numpy()] if record_trajectories else [],
+            episode_class=torch.unique(start.flatten(1), dim=0, return_inverse=True)[1],
         )
 
     def add_step(self, step: int, world: TensorDictBase, done: torch.Tensor) -> None:
@@ -195,6 +200,9 @@ class _EpisodeTally:
             frame[self.finished[: self.record_trajectories]] = float("nan")
             self.trajectory.append(frame.cpu().numpy())
         self.previous = now
+        # A world's class: its class so far and where its agents are now (a finished world's trajectory is over).
+        key = torch.cat([self.episode_class.unsqueeze(-1).to(now.dtype), now.flatten(1) * live], dim=-1)
+        self.episode_class = torch.unique(key, dim=0, return_inverse=True)[1]
         ending = running & done
         if bool(ending.any()):
             self._add_deadlocks(step, now, ending, info["timed_out"])
@@ -250,6 +258,7 @@ class _EpisodeTally:
             deadlocked=self.deadlocked.cpu().numpy(),
             trajectories=np.stack(self.trajectory) if self.record_trajectories else None,
             ego=ego,
+            distinct_episodes=int(self.episode_class.max()) + 1,
         )
 
 
@@ -326,6 +335,8 @@ def summarize(record: EpisodeRecord) -> dict[str, float]:
     if record.deadlocked is not None:
         metrics["deadlock_rate"] = float(record.deadlocked.mean())
     metrics["episodes"] = float(record.returns.shape[0])
+    if record.distinct_episodes is not None:
+        metrics["distinct_episodes"] = float(record.distinct_episodes)
     for agent in range(n_agents):
         for name, value in _group_metrics(record, [agent]).items():
             metrics[f"agent{agent}/{name}"] = value

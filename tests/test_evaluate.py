@@ -75,3 +75,11 @@ def test_a_sampling_policy_draws_for_every_world():
     counting = CountingPolicy(policy)
     evaluation.run_episodes(view, counting, seed=3, deterministic=False)
     assert set(counting.inputs) == {16}  # never deduplicated: equal inputs would share one draw
+
+
+@pytest.mark.parametrize("noise, distinct", [(0.0, 1), (0.3, 16)])
+def test_distinct_episodes_says_how_many_different_episodes_an_evaluation_played(noise, distinct):
+    policy, view = learner_and_view("env=discrete", f"noise={noise}", worlds=16)
+    metrics = evaluation.evaluate(view, policy, seed=11)
+    # noise 0 in the fixed sidewalk: 16 worlds, one episode (its rates are 0 or 1); noise: every world its own
+    assert (metrics["episodes"], metrics["distinct_episodes"]) == (16, distinct)

@@ -70,6 +70,7 @@ def test_a_change_in_what_a_job_computes_is_caught_and_named():
     changed = compare(recorded, today)[0]
     assert not changed.same and changed.detail == "eval/ego/return at iteration 2: recorded 0.7, today 0.8"
     assert "no longer written" in compare(recorded, today.drop(columns="eval/ego/return"))[0].detail
+    assert compare(recorded, recorded.assign(**{"eval/distinct_episodes": 1.0}))[0].same  # a metric added since
     table = status_table([(Reference(REFERENCE_ROOT, {"commit": "0" * 40, "jobs": {"a": [], "b": []}}), [changed])])
     assert "**no**: `a`: eval/ego/return" in table
     assert "**0 of 2**: its report still shows the runs of an earlier commit" in table

@@ -189,15 +189,15 @@ def _runs_section(conditions: Sequence[Condition], numbers: NumberLog, out: Path
         "",
         f"Runs are grouped by their config without the seed and bookkeeping keys ({', '.join(BOOKKEEPING_KEYS)}).",
         "",
-        "| id | condition | family | seeds | iterations | frames |",
-        "| --- | --- | --- | --- | ---: | ---: |",
+        "| id | condition | family | seeds | iterations | frames | distinct episodes |",
+        "| --- | --- | --- | --- | ---: | ---: | --- |",
     ]
     for condition in conditions:
         iterations = int(condition.runs[0].metrics["iteration"].iloc[-1])
         frames = int(condition.runs[0].metrics["frames"].iloc[-1])
         md.append(
             f"| {condition.ident} | {condition.label} | {', '.join(condition.families)} | "
-            f"{', '.join(map(str, condition.seeds))} | {iterations} | {frames} |"
+            f"{', '.join(map(str, condition.seeds))} | {iterations} | {frames} | {_distinct_episodes(condition)} |"
         )
         numbers.add("conditions", condition, "", "", "seeds", len(condition.runs), len(condition.runs))
         numbers.add("conditions", condition, "", "", "iterations", iterations, len(condition.runs))
@@ -215,6 +215,16 @@ def _runs_section(conditions: Sequence[Condition], numbers: NumberLog, out: Path
                 f"used `{shown_path(kept, out)}`, left out `{shown_path(left_out, out)}`"
             )
     return md + [""]
+
+
+def _distinct_episodes(condition: Condition) -> str:
+    """How many different episodes the seeds' final evaluations played, of how many worlds ("–": not recorded)."""
+    counts = [run.summary.get("distinct_episodes") for run in condition.runs]
+    if any(count is None for count in counts):
+        return "–"
+    low, high = int(min(counts)), int(max(counts))
+    worlds = int(max(run.summary.get("episodes", 0) for run in condition.runs))
+    return f"{low} of {worlds}" if low == high else f"{low}–{high} of {worlds}"
 
 
 def _skipped_section(skipped: Sequence[Skipped]) -> list[str]:
@@ -239,6 +249,11 @@ def _statistics_section(settings: Settings, safety: bool) -> list[str]:
         (
             "- Final values: `summary.json` of each seed (the last evaluation). IQM is the interquartile mean (the mean "
             "of the middle 50 % of the seeds' values; with fewer than 4 seeds nothing is trimmed and it is the mean)."
+        ),
+        (
+            "- Distinct episodes (Conditions): how many different trajectories the worlds of a final evaluation "
+            "played. At noise 0 in a fixed layout every world plays the same episode (1 of 256): each seed's rate is "
+            "then one episode's 0 or 1, and the spread shown is the seeds' alone."
         ),
         (
             f"- {level} CI: percentile interval of the IQM under the stratified bootstrap (rliable's method), "
