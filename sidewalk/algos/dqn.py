@@ -67,9 +67,13 @@ class DQNConfig(AlgoConfig):
     target_period: int = 500
     double_dqn: bool = True
     loss_function: str = "smooth_l1"
+    # Advantage learning (Bellemare et al. 2016, "Increasing the Action Gap"): the target loses this share of the
+    # taken action's gap to the best one under the target network, so approximation noise flips no greedy action.
+    advantage_learning: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        check_range("algo.advantage_learning", self.advantage_learning, 0.0, 1.0)
         check_int("algo.hidden", self.hidden, 1)
         check_int("algo.buffer_size", self.buffer_size, 1)
         check_int("algo.batch_size", self.batch_size, 1, self.buffer_size)
@@ -230,6 +234,10 @@ class DQN(Algorithm):
             target = td0_return_estimate(
                 self.loss.value_estimator.gamma, next_value, sample["next", "reward"], sample["next", "terminated"]
             ).squeeze(-1)
+            if cfg.advantage_learning:
+                q_now = self.target_q_network(sample["observation"])
+                gap = q_now.amax(-1) - q_now.gather(-1, action.unsqueeze(-1)).squeeze(-1)
+                target = target - cfg.advantage_learning * gap
         loss = distance_loss(q_taken, target, cfg.loss_function).mean()
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()

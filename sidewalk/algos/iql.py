@@ -67,6 +67,11 @@ class IQLConfig(DQNConfig, MultiAgentConfig):
     lr_end: float = 5e-4  # = lr: no decay
     lr_decay_frames: int = 153_600
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.advantage_learning:
+            raise ValueError(f"algo.advantage_learning={self.advantage_learning} is DQN's alone so far; valid here: 0")
+
 
 class AgentQNetwork(MultiAgentNetBase):
     """Per-agent Q-values (..., N, n_actions) from per-agent observations (..., N, *obs): DQN's network (the paper's
