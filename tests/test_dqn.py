@@ -50,6 +50,20 @@ def test_the_gradient_step_is_dqnloss_arithmetic(overrides):
     torch.testing.assert_close(ours.loss.state_dict(), theirs.loss.state_dict())
 
 
+def test_advantage_learning_is_dqn_on_a_reward_less_the_action_gap():
+    ours, view = build("algo.advantage_learning=0.9")
+    theirs, _ = build()
+    sample = transitions(view)
+    for _ in range(3):
+        q = target_q(theirs, sample["observation"])
+        gap = q.amax(-1) - q.gather(-1, sample["action"].unsqueeze(-1)).squeeze(-1)
+        assert bool((gap > 0).any())  # some taken actions are not the target network's best
+        shifted = sample.clone()
+        shifted["next", "reward"] = sample["next", "reward"] - 0.9 * gap.unsqueeze(-1)
+        torch.testing.assert_close(ours._gradient_step(sample.clone()), loss_module_step(theirs, shifted))
+    torch.testing.assert_close(ours.loss.state_dict(), theirs.loss.state_dict())
+
+
 def test_the_target_network_follows_updates_and_loads():
     algo, view = build()
     sample = transitions(view)

@@ -25,7 +25,7 @@ from torchrl.modules import MLP, EGreedyModule, MultiAgentNetBase, QValueModule
 from torchrl.objectives import DQNLoss, HardUpdate, LossModule, SoftUpdate, ValueEstimators
 
 from sidewalk.algos.base import MultiAgentAlgorithm, MultiAgentConfig
-from sidewalk.algos.dqn import DQNConfig, decay_epsilon, replay_updates
+from sidewalk.algos.dqn import DQNConfig, decay_epsilon, loss_module_step, replay_updates
 from sidewalk.algos.networks import DuelingHead, is_image_spec, make_encoder
 from sidewalk.envs.base import AGENT_GROUP
 
@@ -67,10 +67,6 @@ class IQLConfig(DQNConfig, MultiAgentConfig):
     lr_end: float = 5e-4  # = lr: no decay
     lr_decay_frames: int = 153_600
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.advantage_learning:
-            raise ValueError(f"algo.advantage_learning={self.advantage_learning} is DQN's alone so far; valid here: 0")
 
 
 class AgentQNetwork(MultiAgentNetBase):
@@ -231,7 +227,25 @@ class IQL(MultiAgentAlgorithm):
         for group in self.optimizer.param_groups:
             group["lr"] = cfg.lr + (cfg.lr_end - cfg.lr) * progress
         logs: dict[str, float] = {"epsilon": float(self.greedy.eps), "lr": self.optimizer.param_groups[0]["lr"]}
-        return {**logs, **replay_updates(self, replay_buffer)}
+        step = self._advantage_learning_step if cfg.advantage_learning else None
+        return {**logs, **replay_updates(self, replay_buffer, step)}
+
+    def action_gaps(self, sample: TensorDictBase) -> torch.Tensor:
+        """(batch, N): each agent's taken action's gap to its best one under the target network."""
+        # DQNLoss names the agents' network "value_network"; QMixerLoss (VDN, QMIX) "local_value_network".
+        name = "local_value_network" if hasattr(self.loss, "local_value_network") else "value_network"
+        target = getattr(self.loss, f"target_{name}_params")
+        with torch.no_grad(), target.to_module(getattr(self.loss, name)):
+            q = self.q_network(sample[self.OBSERVATION_KEY])
+        return q.amax(-1) - q.gather(-1, sample[self.ACTION_KEY].unsqueeze(-1)).squeeze(-1)
+
+    def _advantage_learning_step(self, sample: TensorDictBase) -> torch.Tensor:
+        """DQN's advantage learning (``DQNConfig.advantage_learning``): the loss's step on each agent's reward less
+        α times its action gap."""
+        reward_key = ("next", *self.REWARD_KEY)
+        gaps = self.action_gaps(sample)
+        sample.set(reward_key, sample.get(reward_key) - self.config.advantage_learning * gaps.unsqueeze(-1))
+        return loss_module_step(self, sample)
 
     def modules(self) -> dict[str, torch.nn.Module]:
         return {"loss": self.loss, "greedy": self.greedy}

@@ -15,6 +15,7 @@ from torchrl.envs import EnvBase
 from torchrl.modules import VDNMixer
 from torchrl.objectives import LossModule, QMixerLoss
 
+from sidewalk.algos.dqn import loss_module_step
 from sidewalk.algos.iql import CHOSEN_ACTION_VALUE_KEY, IQL, IQLConfig
 
 TEAM_VALUE_KEY = "chosen_action_value"  # the mixer's output, Q_tot (batch, 1)
@@ -79,6 +80,12 @@ class VDN(IQL):
         )
         loss.set_keys(local_value=CHOSEN_ACTION_VALUE_KEY, global_value=TEAM_VALUE_KEY, action=self.ACTION_KEY)
         return loss
+
+    def _advantage_learning_step(self, sample: TensorDictBase) -> torch.Tensor:
+        """Advantage learning on Q_tot: its gap to the best joint action is the sum of the in-play agents' gaps."""
+        gaps = (self.action_gaps(sample) * sample.get(self.MASK_KEY).squeeze(-1)).sum(-1, keepdim=True)
+        sample.set(("next", "reward"), sample.get(("next", "reward")) - self.config.advantage_learning * gaps)
+        return loss_module_step(self, sample)
 
     def transitions(self, batch: TensorDictBase) -> TensorDictBase:
         kept = batch.select(*self.TRANSITION_KEYS)
