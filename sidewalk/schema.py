@@ -103,12 +103,19 @@ class ExperimentSchema:
     other_play: bool = False
 
 
+# Learner keys whose default is not what a run written before them did: such a run reads with this value.
+LATER_ALGO_KEYS: dict[str, Any] = {"advantage_learning": 0.0}
+
+
 def with_schema_defaults(cfg: DictConfig) -> DictConfig:
     """A run folder's saved config with every key it lacks filled from today's schemas (top level, algorithm,
     logger): a folder written before a key existed (``keep_checkpoint``, ``algo.dueling``) reads as the run it was,
-    since a new key's default keeps the old behaviour. The algorithm and logger sections come back typed."""
+    since a new key's default keeps the old behaviour, or ``LATER_ALGO_KEYS`` gives the value it ran with. The algorithm
+    and logger sections come back typed."""
     cfg = OmegaConf.merge(OmegaConf.structured(ExperimentSchema), cfg)
-    cfg.algo = OmegaConf.merge(OmegaConf.structured(ALGORITHMS[cfg.algo.name].Config), cfg.algo)
+    config_cls = ALGORITHMS[cfg.algo.name].Config
+    older = {key: value for key, value in LATER_ALGO_KEYS.items() if key in config_cls.__dataclass_fields__}
+    cfg.algo = OmegaConf.merge(OmegaConf.structured(config_cls), older, cfg.algo)
     cfg.logger = OmegaConf.merge(OmegaConf.structured(LoggerSchema), cfg.logger)
     return cfg
 

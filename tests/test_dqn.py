@@ -14,7 +14,9 @@ from sidewalk.experiment import make_view
 
 
 def build(*overrides: str, seed: int = 0) -> tuple[DQN, object]:
-    experiment = compose_experiment(["env=discrete", "opponent=dijkstra", "algo=dqn", "noise=0.1", *overrides])
+    # Plain DQN unless told (DQNLoss's arithmetic); a later override wins.
+    experiment = compose_experiment(["env=discrete", "opponent=dijkstra", "algo=dqn", "noise=0.1",
+                                     "algo.advantage_learning=0", *overrides])
     view = make_view(experiment, 8, seed)
     torch.manual_seed(seed)
     return DQN(experiment.algo, view), view

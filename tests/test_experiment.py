@@ -251,3 +251,24 @@ def test_resume_reads_keys_added_since_the_folder_was_written_at_their_defaults(
     plain = {**config, "algo": {**config["algo"], "dueling": False}}
     with pytest.raises(run_folder.RunFolderError, match=r"algo.dueling: True -> False"):
         run_folder.check(tmp_path, plain, resume=True)
+
+
+def test_a_dqn_folder_from_before_advantage_learning_reads_as_the_plain_dqn_it_ran(tmp_path):
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from sidewalk import run_folder
+    from sidewalk.config import register_schemas
+
+    register_schemas()
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        config = OmegaConf.to_container(compose(config_name="config", overrides=["resume=true"]), resolve=True)
+    assert config["algo"]["advantage_learning"] == 0.9  # today's default learner
+    old = {**config, "algo": {k: v for k, v in config["algo"].items() if k != "advantage_learning"}}
+    OmegaConf.save(OmegaConf.create(old), tmp_path / run_folder.CONFIG)
+    (tmp_path / run_folder.CHECKPOINT).write_bytes(b"")
+    assert run_folder.read_saved_config(tmp_path).algo.advantage_learning == 0.0
+    with pytest.raises(run_folder.RunFolderError, match=r"algo.advantage_learning: 0.0 -> 0.9"):
+        run_folder.check(tmp_path, config, resume=True)
+    plain = {**config, "algo": {**config["algo"], "advantage_learning": 0.0}}
+    assert run_folder.check(tmp_path, plain, resume=True) is None

@@ -12,6 +12,7 @@ from tensordict import TensorDict
 from torchrl.envs import RewardSum, TransformedEnv
 
 from sidewalk.algos import ALGORITHMS
+from sidewalk.algos.dqn import loss_module_step
 from sidewalk.algos.iql import ACTION_VALUE_KEY, CHOSEN_ACTION_VALUE_KEY
 from sidewalk.algos.qmix import STATE_KEY
 from sidewalk.envs import DiscreteSidewalkEnv
@@ -184,6 +185,22 @@ def test_loss_decreases_on_a_fixed_batch(name):
         loss.backward()
         algo.optimizer.step()
     assert algo.loss(batch)["loss"].item() < 0.5 * first
+
+
+@pytest.mark.parametrize("name", ["iql", "vdn"])
+def test_advantage_learning_is_the_loss_on_rewards_less_the_action_gaps(name):
+    ours, env = make_learner(name, advantage_learning=0.9)
+    theirs, _ = make_learner(name)
+    batch = ours.transitions(random_batch(env, 8))
+    gaps = theirs.action_gaps(batch)  # (32, 2)
+    assert bool((gaps > 0).any())
+    shifted = batch.clone()
+    if name == "iql":
+        shifted["next", *REWARD] = batch["next", *REWARD] - 0.9 * gaps.unsqueeze(-1)
+    else:  # Q_tot's gap: the in-play agents' gaps summed
+        shifted["next", "reward"] = batch["next", "reward"] - 0.9 * (gaps * batch[MASK].squeeze(-1)).sum(-1, True)
+    torch.testing.assert_close(ours._advantage_learning_step(batch.clone()), loss_module_step(theirs, shifted))
+    torch.testing.assert_close(ours.loss.state_dict(), theirs.loss.state_dict())
 
 
 @pytest.mark.parametrize("name", LEARNERS)

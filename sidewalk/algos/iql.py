@@ -66,6 +66,7 @@ class IQLConfig(DQNConfig, MultiAgentConfig):
     eps_ladder: float = 0.0
     lr_end: float = 5e-4  # = lr: no decay
     lr_decay_frames: int = 153_600
+    advantage_learning: float = 0.0
 
 
 
