@@ -42,7 +42,7 @@ class DQNConfig(AlgoConfig):
     # One iteration: 4 steps of 128 worlds, then 4 gradient steps, Polyak 0.05 a step. Against 4 steps of 32 worlds
     # and Polyak 0.01 (the reference runs' settings, which the grid presets keep), the default run learns in as
     # many frames with a quarter of the gradient steps: at 200 iterations (102,400 frames) ego success is 1.0 on
-    # seeds 0-4 with advantage learning, on 3 of 5 without (docs/guide/evaluation.md, "Evaluations that hold").
+    # seeds 0-4 with advantage learning, on 3 of 5 without (docs/guide/known-properties.md, "Evaluations that hold").
     frames_per_batch: int = 512
     default_num_envs: int = 128
     default_iterations: int = 200
@@ -68,7 +68,7 @@ class DQNConfig(AlgoConfig):
     loss_function: str = "smooth_l1"
     # Advantage learning (Bellemare et al. 2016, "Increasing the Action Gap"): the target loses this share of the
     # taken action's gap to the best one under the target network, so approximation noise flips no greedy action
-    # (docs/guide/evaluation.md, "Evaluations that hold"). 0 is the paper's DQN, which its presets pin.
+    # (docs/guide/known-properties.md, "Evaluations that hold"). 0 is the paper's DQN, which its presets pin.
     advantage_learning: float = 0.9
 
     def __post_init__(self) -> None:
