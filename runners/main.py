@@ -150,8 +150,8 @@ def one_line(error: BaseException) -> str:
     first = str(error).strip().split("\n\n")[0]
     text = " ".join(line.strip() for line in first.splitlines() if line.strip())
     if isinstance(error, MissingConfigException) and error.options:
-        # The group's schema entries (*_default) are no choice of the user's.
-        valid = [option for option in error.options if not option.endswith("_default")]
+        # The per-domain defaults (*_default, *_selfplay) are no choice of the user's.
+        valid = [option for option in error.options if not option.endswith(("_default", "_selfplay"))]
         text += f"; valid: {', '.join(valid)}"
     cause = error.__cause__
     if isinstance(cause, OmegaConfBaseException):
