@@ -114,6 +114,11 @@ def replay_updates(algo: Algorithm, replay_buffer: Any, gradient_step=None) -> d
     return {"loss": float(torch.stack(losses).mean()) if losses else float("nan")}
 
 
+def action_gap(q_values: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+    """How far below the best action's value the taken ``action``'s lies: ``q_values`` (..., actions), ``action`` (...)."""
+    return q_values.amax(-1) - q_values.gather(-1, action.unsqueeze(-1)).squeeze(-1)
+
+
 def loss_module_step(algo: Algorithm, sample: TensorDictBase) -> torch.Tensor:
     """One gradient step of ``algo.loss`` (a TorchRL loss module) on ``sample``: backward, gradient-norm clip, the
     optimiser, then ``algo.target_updater``; returns the detached loss."""
@@ -235,9 +240,7 @@ class DQN(Algorithm):
                 self.loss.value_estimator.gamma, next_value, sample["next", "reward"], sample["next", "terminated"]
             ).squeeze(-1)
             if cfg.advantage_learning:
-                q_now = self.target_q_network(sample["observation"])
-                gap = q_now.amax(-1) - q_now.gather(-1, action.unsqueeze(-1)).squeeze(-1)
-                target = target - cfg.advantage_learning * gap
+                target = target - cfg.advantage_learning * action_gap(self.target_q_network(sample["observation"]), action)
         loss = distance_loss(q_taken, target, cfg.loss_function).mean()
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()

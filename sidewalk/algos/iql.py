@@ -25,7 +25,7 @@ from torchrl.modules import MLP, EGreedyModule, MultiAgentNetBase, QValueModule
 from torchrl.objectives import DQNLoss, HardUpdate, LossModule, SoftUpdate, ValueEstimators
 
 from sidewalk.algos.base import MultiAgentAlgorithm, MultiAgentConfig
-from sidewalk.algos.dqn import DQNConfig, decay_epsilon, loss_module_step, replay_updates
+from sidewalk.algos.dqn import DQNConfig, action_gap, decay_epsilon, loss_module_step, replay_updates
 from sidewalk.algos.networks import DuelingHead, is_image_spec, make_encoder
 from sidewalk.envs.base import AGENT_GROUP
 
@@ -67,7 +67,6 @@ class IQLConfig(DQNConfig, MultiAgentConfig):
     lr_end: float = 5e-4  # = lr: no decay
     lr_decay_frames: int = 153_600
     advantage_learning: float = 0.0
-
 
 
 class AgentQNetwork(MultiAgentNetBase):
@@ -153,6 +152,7 @@ class IQL(MultiAgentAlgorithm):
     domains = ("discrete",)
     Config = IQLConfig
     uses_replay_buffer = True
+    AGENT_NETWORK: ClassVar[str] = "value_network"  # the agents' Q-network, as the loss module names it
     # What the replay buffer keeps of a transition: the agents' own rewards, ends and masks.
     TRANSITION_KEYS: ClassVar[tuple[NestedKey, ...]] = (
         MultiAgentAlgorithm.OBSERVATION_KEY, MultiAgentAlgorithm.ACTION_KEY, MultiAgentAlgorithm.MASK_KEY,
@@ -233,19 +233,20 @@ class IQL(MultiAgentAlgorithm):
 
     def action_gaps(self, sample: TensorDictBase) -> torch.Tensor:
         """(batch, N): each agent's taken action's gap to its best one under the target network."""
-        # DQNLoss names the agents' network "value_network"; QMixerLoss (VDN, QMIX) "local_value_network".
-        name = "local_value_network" if hasattr(self.loss, "local_value_network") else "value_network"
-        target = getattr(self.loss, f"target_{name}_params")
-        with torch.no_grad(), target.to_module(getattr(self.loss, name)):
+        network = getattr(self.loss, self.AGENT_NETWORK)
+        with torch.no_grad(), getattr(self.loss, f"target_{self.AGENT_NETWORK}_params").to_module(network):
             q = self.q_network(sample[self.OBSERVATION_KEY])
-        return q.amax(-1) - q.gather(-1, sample[self.ACTION_KEY].unsqueeze(-1)).squeeze(-1)
+        return action_gap(q, sample[self.ACTION_KEY])
+
+    def reward_gaps(self, sample: TensorDictBase) -> tuple[NestedKey, torch.Tensor]:
+        """The reward the loss trains on and the action gaps in its shape: each agent's own."""
+        return ("next", *self.REWARD_KEY), self.action_gaps(sample).unsqueeze(-1)
 
     def _advantage_learning_step(self, sample: TensorDictBase) -> torch.Tensor:
-        """DQN's advantage learning (``DQNConfig.advantage_learning``): the loss's step on each agent's reward less
-        α times its action gap."""
-        reward_key = ("next", *self.REWARD_KEY)
-        gaps = self.action_gaps(sample)
-        sample.set(reward_key, sample.get(reward_key) - self.config.advantage_learning * gaps.unsqueeze(-1))
+        """DQN's advantage learning (``DQNConfig.advantage_learning``): the loss's step on the reward less α times
+        the action gap."""
+        reward_key, gaps = self.reward_gaps(sample)
+        sample.set(reward_key, sample.get(reward_key) - self.config.advantage_learning * gaps)
         return loss_module_step(self, sample)
 
     def modules(self) -> dict[str, torch.nn.Module]:

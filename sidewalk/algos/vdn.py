@@ -15,7 +15,6 @@ from torchrl.envs import EnvBase
 from torchrl.modules import VDNMixer
 from torchrl.objectives import LossModule, QMixerLoss
 
-from sidewalk.algos.dqn import loss_module_step
 from sidewalk.algos.iql import CHOSEN_ACTION_VALUE_KEY, IQL, IQLConfig
 
 TEAM_VALUE_KEY = "chosen_action_value"  # the mixer's output, Q_tot (batch, 1)
@@ -59,6 +58,7 @@ class VDN(IQL):
     name = "vdn"
     domains = ("discrete",)
     Config = VDNConfig
+    AGENT_NETWORK: ClassVar[str] = "local_value_network"  # QMixerLoss's name for the agents' Q-network
     # The agents' rewards are summed into the root ("next", "reward") when the buffer is filled (``transitions``).
     TRANSITION_KEYS: ClassVar[tuple[NestedKey, ...]] = (
         IQL.OBSERVATION_KEY, IQL.ACTION_KEY, IQL.MASK_KEY, ("next", *IQL.OBSERVATION_KEY), ("next", *IQL.MASK_KEY),
@@ -81,11 +81,9 @@ class VDN(IQL):
         loss.set_keys(local_value=CHOSEN_ACTION_VALUE_KEY, global_value=TEAM_VALUE_KEY, action=self.ACTION_KEY)
         return loss
 
-    def _advantage_learning_step(self, sample: TensorDictBase) -> torch.Tensor:
-        """Advantage learning on Q_tot: its gap to the best joint action is the sum of the in-play agents' gaps."""
-        gaps = (self.action_gaps(sample) * sample.get(self.MASK_KEY).squeeze(-1)).sum(-1, keepdim=True)
-        sample.set(("next", "reward"), sample.get(("next", "reward")) - self.config.advantage_learning * gaps)
-        return loss_module_step(self, sample)
+    def reward_gaps(self, sample: TensorDictBase) -> tuple[NestedKey, torch.Tensor]:
+        """The team reward and Q_tot's gap to the best joint action: the sum of the in-play agents' gaps."""
+        return ("next", "reward"), (self.action_gaps(sample) * sample.get(self.MASK_KEY).squeeze(-1)).sum(-1, True)
 
     def transitions(self, batch: TensorDictBase) -> TensorDictBase:
         kept = batch.select(*self.TRANSITION_KEYS)
