@@ -19,6 +19,7 @@ from sidewalk.algos import ALGORITHMS
 from sidewalk.envs.grid import DiscreteParams
 from sidewalk.envs.rewards import RewardParams
 from sidewalk.envs.unicycle import ContinuousParams
+from sidewalk.later_keys import later_algo_keys
 
 # Set by the top level (`noise`) and the reward group, so they are not env-group fields.
 ENV_FIELDS_SET_ELSEWHERE = ("noise", "rewards")
@@ -103,19 +104,15 @@ class ExperimentSchema:
     other_play: bool = False
 
 
-# Learner keys whose default is not what a run written before them did: such a run reads with this value.
-LATER_ALGO_KEYS: dict[str, Any] = {"advantage_learning": 0.0}
-
-
 def with_schema_defaults(cfg: DictConfig) -> DictConfig:
     """A run folder's saved config with every key it lacks filled from today's schemas (top level, algorithm,
     logger): a folder written before a key existed (``keep_checkpoint``, ``algo.dueling``) reads as the run it was,
-    since a new key's default keeps the old behaviour, or ``LATER_ALGO_KEYS`` gives the value it ran with. The algorithm
+    since a new key's default keeps the old behaviour, or ``sidewalk.later_keys`` gives the value it ran with. The algorithm
     and logger sections come back typed."""
     cfg = OmegaConf.merge(OmegaConf.structured(ExperimentSchema), cfg)
-    config_cls = ALGORITHMS[cfg.algo.name].Config
-    older = {key: value for key, value in LATER_ALGO_KEYS.items() if key in config_cls.__dataclass_fields__}
-    cfg.algo = OmegaConf.merge(OmegaConf.structured(config_cls), older, cfg.algo)
+    cfg.algo = OmegaConf.merge(
+        OmegaConf.structured(ALGORITHMS[cfg.algo.name].Config), later_algo_keys(cfg.algo.name), cfg.algo
+    )
     cfg.logger = OmegaConf.merge(OmegaConf.structured(LoggerSchema), cfg.logger)
     return cfg
 

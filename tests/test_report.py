@@ -29,6 +29,7 @@ from sidewalk.report import (
     write_report,
 )
 from sidewalk.report.claims import Stat, check_claims, faster
+from sidewalk.report.conditions import condition_config
 from sidewalk.stats import interval_estimate, iqm, mean_se
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -623,3 +624,11 @@ def test_presets_compose_into_valid_sweeps(preset, scale):
             assert list(job.reward.shaped_agents) == [0]  # the paper's centralized run shaped agent 0 only
         if preset.endswith("continuous") or preset == "fig8":
             assert job.noise == (float(value) if key == "noise" else 0.01)
+
+
+def test_a_run_from_before_a_learner_key_is_one_condition_with_todays_runs_of_its_setting():
+    old = {"env.domain": "discrete", "algo.name": "dqn", "algo.lr": 0.001}
+    assert condition_config(old) == condition_config({**old, "algo.advantage_learning": 0.0})
+    assert condition_config(old) != condition_config({**old, "algo.advantage_learning": 0.9})
+    # A learner without the key gains none.
+    assert "algo.advantage_learning" not in condition_config({**old, "algo.name": "ppo"})

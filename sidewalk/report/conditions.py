@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sidewalk.later_keys import with_later_keys
 from sidewalk.report.runs import SUMMARY, Run
 
 # Keys that change neither what a run learns nor what it measures, so they never split runs into conditions
@@ -16,23 +17,6 @@ from sidewalk.report.runs import SUMMARY, Run
 BOOKKEEPING_KEYS = ("seed", "resume", "device", "torch_threads", "checkpoint_every", "logger")
 OPPONENT_ORDER = ("random", "dijkstra", "prm", "centralized")
 DOMAIN_ORDER = ("discrete", "continuous")
-# Keys that came into the config after runs were made, with the value that a run written without them had: an older
-# run without ``shield`` trained unshielded, so it is the same condition as a ``shield=false`` run, and a shielded run
-# is always a condition of its own.
-LATER_KEYS: dict[str, Any] = {"shield": False, "other_play": False}
-# Env keys that came later, per domain (env.domain): the safety cost of runs written before it was counted.
-LATER_ENV_KEYS: dict[str, dict[str, Any]] = {
-    "discrete": {"env.cost": "collision", "env.near_miss_margin": 1.0},
-    "continuous": {"env.cost": "collision", "env.near_miss_margin": 0.3},
-}
-
-
-def with_later_keys(flat: dict[str, Any]) -> dict[str, Any]:
-    """A run's flat config with every key of ``LATER_KEYS``/``LATER_ENV_KEYS`` it lacks at the value it had then, so a
-    run from before a key existed groups with today's runs of the same setting (the report's and cross-play's)."""
-    return {**LATER_KEYS, **LATER_ENV_KEYS.get(str(flat.get("env.domain")), {}), **flat}
-
-
 def _is_bookkeeping(key: str) -> bool:
     return any(key == k or key.startswith(f"{k}.") for k in BOOKKEEPING_KEYS)
 
@@ -106,8 +90,8 @@ def _sort_key(condition: Condition) -> tuple:
 
 
 def group_conditions(runs: Sequence[Run]) -> list[Condition]:
-    """Group runs by their config without seed and bookkeeping keys (a key of ``LATER_KEYS`` that a run's config
-    lacks taking its value there); one run per seed (a repeated seed, e.g. the same condition run by two presets,
+    """Group runs by their config without seed and bookkeeping keys (a later key that a run's config lacks taking
+    its value there, ``sidewalk.later_keys``); one run per seed (a repeated seed, e.g. the same condition run by two presets,
     keeps the newest run and notes the others). Conditions are sorted (domain, algorithm, opponent, noise, reward,
     shield) and numbered C1, C2, ..."""
     grouped: dict[str, Condition] = {}
