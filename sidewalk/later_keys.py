@@ -8,10 +8,10 @@ from typing import Any
 
 # Top-level keys: an older run without ``shield`` trained unshielded, so it is a ``shield=false`` run.
 LATER_KEYS: dict[str, Any] = {"shield": False, "other_play": False}
-# Env keys, per domain (env.domain): the safety cost of runs written before it was counted.
+# Env keys, per domain (env.domain): the safety cost of runs written before it was counted, the observed route.
 LATER_ENV_KEYS: dict[str, dict[str, Any]] = {
     "discrete": {"env.cost": "collision", "env.near_miss_margin": 1.0},
-    "continuous": {"env.cost": "collision", "env.near_miss_margin": 0.3},
+    "continuous": {"env.cost": "collision", "env.near_miss_margin": 0.3, "env.observe_route": False},
 }
 # Learner keys whose default is not what a run written before them did, with the learners (algo.name) that have them.
 LATER_ALGO_KEYS: dict[str, tuple[Any, tuple[str, ...]]] = {

@@ -349,13 +349,22 @@ def test_continuous_progress_shaping_measures_the_path_through_the_door():
     layout, radius = env.layout, env.params.agent_radius_m
     path = GeodesicDistance(torch.tensor(layout.boxes), layout.length_m, layout.width_m, radius)
     (wall_x0, _, wall_x1, gap_y0), _ = layout.boxes
-    grow = radius / 2**0.5
-    # Agent 1 starts below the gap's line: round the gap's lower corners, each grown r/√2 (r from the box corner).
+    # Agent 1 starts below the gap's line: round the gap's lower corners, the wall grown by r (a disc's centre there
+    # is clear of the wall).
     (sx, sy), (gx, gy) = layout.starts[1], layout.goals[1]
+    grow = radius
     corner_in, corner_out = (wall_x0 - grow, gap_y0 + grow), (wall_x1 + grow, gap_y0 + grow)
     by_hand = math.dist((sx, sy), corner_in) + math.dist(corner_in, corner_out) + math.dist(corner_out, (gx, gy))
     measured = path(*(torch.tensor([v]) for v in (sx, sy, gx, gy)))
     assert measured.item() == pytest.approx(by_hand, abs=1e-5) and by_hand > math.dist((sx, sy), (gx, gy)) + 0.15
+    # Every bend of the path is a place a disc can stand: clear of both walls by at least its radius.
+    for corner in path.waypoints.tolist():
+        for x_min, y_min, x_max, y_max in layout.boxes:
+            nearest = (min(max(corner[0], x_min), x_max), min(max(corner[1], y_min), y_max))
+            assert math.dist(corner, nearest) >= radius - 1e-6
+    # The first point to head for is the gap's near corner on the agent's side, then its far one, then the goal.
+    heading_for = path.next_point(*(torch.tensor([v]) for v in (sx, sy, gx, gy)))
+    assert heading_for.view(-1).tolist() == pytest.approx(list(corner_in), abs=1e-5)
     # Agent 0 starts on the gap's line: nothing is in its way.
     (x0, y0), (goal_x0, goal_y0) = layout.starts[0], layout.goals[0]
     assert path(*(torch.tensor([v]) for v in (x0, y0, goal_x0, goal_y0))).item() == pytest.approx(goal_x0 - x0)
@@ -387,3 +396,21 @@ def test_geodesic_distance_is_the_straight_line_in_a_room_without_walls():
     segments = torch.tensor([[[0.0, 1.5], [3.0, 1.5]], [[0.0, 1.0], [3.0, 1.0]], [[0.0, 0.0], [1.0, 1.0]],
                              [[1.5, 1.5], [1.6, 1.6]], [[0.0, 0.5], [3.0, 0.5]], [[1.5, 0.0], [1.5, 3.0]]])
     assert blocked(segments[:, 0], segments[:, 1], box).tolist() == [True, False, False, True, False, True]
+
+
+def test_observe_route_shows_the_next_point_of_the_path_around_the_wall():
+    from sidewalk.envs.unicycle import OBSERVATION_FIELDS
+
+    goal_fields = [OBSERVATION_FIELDS.index("goal_x"), OBSERVATION_FIELDS.index("goal_y")]
+    door = {"layout": "door", "n_agents": 3, "length_m": 6.0, "width_m": 3.0}
+    own = ContinuousSidewalkEnv(1, seed=0, observe_route=True, **door).reset()["agents", "observation"][0, :, goal_fields]
+    layout, radius = ContinuousSidewalkEnv(1, **door).layout, 0.3
+    (wall_x0, _, _, gap_y0), (_, gap_y1, _, _) = layout.boxes
+    # Agent 0 starts on the gap's line and sees its goal; agents 1 and 2 see the gap's near corner on their side.
+    assert own[0].tolist() == pytest.approx(list(layout.goals[0]))
+    assert own[1].tolist() == pytest.approx([wall_x0 - radius, gap_y0 + radius])
+    assert own[2].tolist() == pytest.approx([wall_x0 - radius, gap_y1 - radius])
+    # Without interior walls the route is the goal: the observation is the default one.
+    plain, routed = (ContinuousSidewalkEnv(4, seed=0, layout="circle", n_agents=4, observe_route=flag).reset()
+                     for flag in (False, True))
+    torch.testing.assert_close(plain["agents", "observation"], routed["agents", "observation"])

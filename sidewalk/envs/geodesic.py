@@ -1,13 +1,16 @@
 """Shortest-path distances in a room with interior boxes, for the continuous world's progress shaping.
 
 A straight line to the goal pays an agent for walking into a wall that stands between them (the door's); the
-shortest path around the boxes does not. The disc's centre keeps its radius r from a box, so each box is grown by
-r/√2 on every side: its corners then lie exactly r from the box's, and no centre a live disc can hold lies inside it.
-The shortest path around grown boxes bends only at their corners, so it is found on a visibility graph: the grown
-corners are waypoints (those outside the room a disc can reach are left out), and the distance from a point to a goal
-is the straight line when no grown box blocks it, else the best visible waypoint's straight line plus its graph
-distance to the goal. It is within a few centimetres of the true path around the rounded corners, which is enough
-for a potential. Batched over worlds and agents, as the world's step is.
+shortest path around the boxes does not. The disc's centre keeps its radius r from a box, so each box is grown by r
+on every side: a centre on a grown edge or corner is a disc clear of the wall, so the path is one a disc can follow
+(growing by r/√2 put the corners exactly r from the box's and the path through the door's gap 0.21 m from its walls:
+a path no disc can take, whose shaping led agents into the wall's corner). The shortest path around grown boxes bends
+only at their corners, so it is found on a visibility graph: the grown corners are waypoints (those outside the room
+a disc can reach are left out), and the distance from a point to a goal is the straight line when no grown box
+blocks it, else the best visible waypoint's straight line plus its graph distance to the goal. A centre a disc can
+hold inside a grown box's corner (where the box's rounded outline leaves room) sees the waypoints past the boxes
+grown r/√2 (which no such centre enters), so the potential has no jump there. It is within a few centimetres of the true path around
+the rounded corners, which is enough for a potential. Batched over worlds and agents, as the world's step is.
 """
 
 from __future__ import annotations
@@ -41,8 +44,10 @@ class GeodesicDistance:
     of ``radius_m``; callable on (x, y, goal_x, goal_y) tensors of one shape."""
 
     def __init__(self, boxes: torch.Tensor, length_m: float, width_m: float, radius_m: float) -> None:
-        grow = radius_m / 2**0.5
+        grow = radius_m
         self.boxes = boxes.reshape(-1, 4) + torch.tensor([-grow, -grow, grow, grow], device=boxes.device)
+        inner = radius_m / 2**0.5
+        self.inner_boxes = boxes.reshape(-1, 4) + torch.tensor([-inner, -inner, inner, inner], device=boxes.device)
         corners = []
         for x0, y0, x1, y1 in self.boxes.tolist():
             for x in (x0, x1):
@@ -63,11 +68,12 @@ class GeodesicDistance:
             hops = torch.minimum(hops, hops[:, k : k + 1] + hops[k : k + 1, :])
         return hops
 
-    def __call__(self, x: torch.Tensor, y: torch.Tensor, goal_x: torch.Tensor, goal_y: torch.Tensor) -> torch.Tensor:
-        straight = ((goal_x - x).square() + (goal_y - y).square()).sqrt()
-        if not len(self.boxes):
-            return straight
+    def _route(self, x: torch.Tensor, y: torch.Tensor, goal_x: torch.Tensor, goal_y: torch.Tensor):
+        """(distance to the goal around the boxes, the first point to head for on that path)."""
         point, goal = torch.stack([x, y], -1), torch.stack([goal_x, goal_y], -1)
+        straight = (goal - point).norm(dim=-1)
+        if not len(self.boxes):
+            return straight, goal
         waypoints = self.waypoints.expand(*x.shape, -1, -1)  # (..., K, 2)
         # From each waypoint to the goal: its straight line where visible, else through the other waypoints.
         last_leg = (goal.unsqueeze(-2) - waypoints).norm(dim=-1)
@@ -75,9 +81,21 @@ class GeodesicDistance:
         last_leg = last_leg.masked_fill(hidden, torch.inf)
         to_goal = (self.between + last_leg.unsqueeze(-2)).amin(-1)  # (..., K)
         first_leg = (waypoints - point.unsqueeze(-2)).norm(dim=-1)
-        hidden = blocked(point.unsqueeze(-2).expand_as(waypoints), waypoints, self.boxes)
+        # What a point sees is seen past the boxes grown r/√2, which no centre a disc can hold enters: a centre in the
+        # room a rounded corner leaves inside a grown box still sees the waypoints and the goal it can walk to.
+        hidden = blocked(point.unsqueeze(-2).expand_as(waypoints), waypoints, self.inner_boxes)
         first_leg = first_leg.masked_fill(hidden, torch.inf)
-        around = (first_leg + to_goal).amin(-1)
-        direct = ~blocked(point, goal, self.boxes)
+        around, best = (first_leg + to_goal).min(-1)
+        direct = ~blocked(point, goal, self.inner_boxes)
         # A point that sees neither the goal nor a waypoint (not one a disc can reach) keeps the straight line.
-        return torch.where(direct | torch.isinf(around), straight, around)
+        straight_on = direct | torch.isinf(around)
+        distance = torch.where(straight_on, straight, around)
+        head_for = torch.gather(waypoints, -2, best[..., None, None].expand(*best.shape, 1, 2)).squeeze(-2)
+        return distance, torch.where(straight_on.unsqueeze(-1), goal, head_for)
+
+    def __call__(self, x: torch.Tensor, y: torch.Tensor, goal_x: torch.Tensor, goal_y: torch.Tensor) -> torch.Tensor:
+        return self._route(x, y, goal_x, goal_y)[0]
+
+    def next_point(self, x: torch.Tensor, y: torch.Tensor, goal_x: torch.Tensor, goal_y: torch.Tensor) -> torch.Tensor:
+        """(..., 2): the first point to head for on the shortest path to the goal, the goal itself where visible."""
+        return self._route(x, y, goal_x, goal_y)[1]

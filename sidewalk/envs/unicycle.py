@@ -50,6 +50,9 @@ class ContinuousParams:
     check_actions: bool = True  # a non-finite action raises, naming its worlds, rather than turning them NaN
     cost: str = "collision"  # the safety cost ("agents", "cost"): "collision", or "near_miss" (collisions too)
     near_miss_margin: float = 0.3  # cost="near_miss": another agent's disc within this many metres of the agent's
+    # True: each agent's observed goal is the next point of its shortest path around interior walls (the goal itself
+    # where no wall stands between; sidewalk.envs.geodesic), so an agent sees where the door's gap is.
+    observe_route: bool = False
     rewards: RewardParams = field(default_factory=RewardParams)
 
     def __post_init__(self) -> None:
@@ -67,7 +70,7 @@ class ContinuousParams:
         check_int("max_steps", self.max_steps, 1)
         check_choice("cost", self.cost, COSTS)
         check_range("near_miss_margin", self.near_miss_margin, 0.0, low_open=True)
-        for name in ("remove_crashed", "check_actions"):
+        for name in ("remove_crashed", "check_actions", "observe_route"):
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name}={getattr(self, name)!r} must be a bool")
         if not isinstance(self.rewards, RewardParams):
@@ -81,7 +84,8 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
     (x, y, v, θ) with θ in [-π, π); ``goal`` is (x, y); ``observation`` lists (x, y, v, θ, goal_x, goal_y, active,
     present) of every agent in ego order (self first), the first six plus uniform ±``noise``: ``active`` is 1 while
     the agent still moves (not arrived, not crashed), ``present`` while it occupies space (moving or parked at its
-    goal); a crashed agent removed from the world is all zeros, so no one sees it as an obstacle.
+    goal); a crashed agent removed from the world is all zeros, so no one sees it as an obstacle. With
+    ``observe_route`` the observed goal is the next point of the agent's path around interior walls.
 
     One step: action noise, then the bounds; θ += turn; v = clip(v + a·dt, ±max_speed); (x, y) += v·(cos θ,
     sin θ)·dt. Collisions: a disc leaving the rectangle or touching an interior box at the end of the step, or
@@ -288,9 +292,10 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
             fields = tuple(tensor.index_select(0, worlds) for tensor in fields)
         state = torch.stack(fields[:4], dim=-1)
         goal = torch.stack(fields[4:6], dim=-1)
+        shown_goal = self._path_length.next_point(*fields[:2], *fields[4:6]) if self.params.observe_route else goal
         present = fields[7].unsqueeze(-1)
         flags = torch.stack(fields[6:], dim=-1).to(torch.float32)
-        per_agent = torch.cat([state * present, goal * present, flags], dim=-1)
+        per_agent = torch.cat([state * present, shown_goal * present, flags], dim=-1)
         n, width = self.n_agents, len(OBSERVATION_FIELDS)
         observation = new_output((len(per_agent), n * n, width), torch.float32, self.device)
         torch.index_select(per_agent, 1, self._ego_order.view(-1), out=observation)
