@@ -147,6 +147,14 @@ def progress_default(*, _root_: Any) -> float:
     return SELFPLAY_PROGRESS[_root_.env.domain]
 
 
+def on_images(on_images: Any, otherwise: Any, *, _root_: Any) -> Any:
+    """``${sidewalk.on_images:a,b}``, a learner setting in ``conf/algo`` that depends on what the agents observe:
+    ``a`` where they see images (the grid's default observation), else ``b``. The run's ``config.yaml`` records the
+    value."""
+    env = _root_.env
+    return on_images if env.domain == "discrete" and env.get("observation", "image") == "image" else otherwise
+
+
 def plugin_config_paths() -> list[str]:
     """``${sidewalk.searchpath:}``, Hydra's search path in ``conf/config.yaml``: the config folders that installed
     plug-ins declare (entry point group ``sidewalk.configs``, each naming a package that holds config groups), so
@@ -161,6 +169,7 @@ def register_schemas() -> None:
     OmegaConf.register_new_resolver("sidewalk.room", room_side, replace=True)
     OmegaConf.register_new_resolver("sidewalk.searchpath", plugin_config_paths, replace=True)
     OmegaConf.register_new_resolver("sidewalk.progress", progress_default, replace=True)
+    OmegaConf.register_new_resolver("sidewalk.on_images", on_images, replace=True)
     store = ConfigStore.instance()
     store.store(name="experiment_schema", node=ExperimentSchema)
     store.store(group="schema/env", name="discrete", node=DiscreteEnvSchema)

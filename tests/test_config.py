@@ -43,9 +43,20 @@ def test_valid_configs_compose_and_validate(overrides):
 
 @pytest.mark.parametrize("name", list(ALGORITHMS))
 def test_algo_yaml_mirrors_its_schema(name):
-    yaml = OmegaConf.load(CONF / "algo" / f"{name}.yaml")
+    # Composed on vectors: a setting that differs on images (${sidewalk.on_images:...}) takes its vector value.
+    yaml = OmegaConf.to_container(composed(f"algo={name}", "env=discrete", "env.observation=vector").algo, resolve=True)
     defaults = dataclasses.asdict(ALGORITHMS[name].Config())
-    assert {k: v for k, v in yaml.items() if k != "defaults"} == defaults
+    assert yaml == defaults
+
+
+@pytest.mark.parametrize("algo", ["ippo", "mappo"])
+def test_on_policy_multiagent_learners_take_image_settings_on_grid_images(algo):
+    settings = ("epochs", "minibatch_size", "entropy_coef", "share_params")
+    images = composed("opponent=self", f"algo={algo}").algo
+    assert [images[key] for key in settings] == [4, 512, 0.01, False]
+    for vectors in (["env=continuous"], ["env.observation=vector"]):
+        assert [composed("opponent=self", f"algo={algo}", *vectors).algo[key] for key in settings] == [10, 64, 0.0, True]
+    assert composed("opponent=self", f"algo={algo}", "algo.epochs=7").algo.epochs == 7  # the command line wins
 
 
 @pytest.mark.parametrize(
