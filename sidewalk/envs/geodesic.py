@@ -44,10 +44,9 @@ class GeodesicDistance:
     of ``radius_m``; callable on (x, y, goal_x, goal_y) tensors of one shape."""
 
     def __init__(self, boxes: torch.Tensor, length_m: float, width_m: float, radius_m: float) -> None:
-        grow = radius_m
-        self.boxes = boxes.reshape(-1, 4) + torch.tensor([-grow, -grow, grow, grow], device=boxes.device)
-        inner = radius_m / 2**0.5
-        self.inner_boxes = boxes.reshape(-1, 4) + torch.tensor([-inner, -inner, inner, inner], device=boxes.device)
+        outward = torch.tensor([-1.0, -1.0, 1.0, 1.0], device=boxes.device)
+        self.boxes = boxes.reshape(-1, 4) + radius_m * outward
+        self.inner_boxes = boxes.reshape(-1, 4) + radius_m / 2**0.5 * outward
         corners = []
         for x0, y0, x1, y1 in self.boxes.tolist():
             for x in (x0, x1):
