@@ -35,7 +35,9 @@ def test_heldout_partners_are_the_held_out_population(matrix):
     members = list(population("continuous", "heldout"))
     assert list(dict.fromkeys(frame["partner"])) == [f"heldout:{name}" for name in members]
     assert frame["heldout"].all() and (frame["skipped"] == "").all()
-    assert set(frame.loc[frame["partner_kind"] == "learned", "partner_label"]) == {f"mappo_seed{s}" for s in range(3)}
+    assert set(frame.loc[frame["partner_kind"] == "learned", "partner_label"]) == {
+        f"mappo_seed{s}" for s in range(3)
+    }
 
 
 def test_the_adhoc_score_is_the_iqm_over_seeds_and_partners(matrix):

@@ -17,12 +17,7 @@ WORLDS = 4
 DOMAINS = ("continuous", "discrete")
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def core(domain: str, seed: int = 0, noise: float = 0.0):
@@ -132,6 +127,8 @@ def test_hesitates_pauses_at_times_drawn_from_the_envs_seed(domain):
 
 def test_a_bad_style_names_the_valid_ones():
     env = core("continuous")
-    with pytest.raises(ValueError, match="style='keep_centre' is not valid; valid: 'keep_left', 'keep_right'"):
+    with pytest.raises(
+        ValueError, match="style='keep_centre' is not valid; valid: 'keep_left', 'keep_right'"
+    ):
         make_opponent("convention", env, style="keep_centre")
     assert STYLES == ("keep_left", "keep_right", "always_yields", "never_yields", "hesitates")

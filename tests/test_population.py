@@ -20,12 +20,7 @@ from sidewalk.views import EgoView
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def core(domain: str, num_envs: int = 16, seed: int = 0, **kwargs):
@@ -43,7 +38,9 @@ def test_the_held_out_population_never_trains(domain):
     ), "no held-out partner hides in training under another name"
     opponent = PopulationOpponent(core(domain))
     assert opponent.names == list(training)
-    with pytest.raises(ValueError, match="population member='keep_left' is not valid; valid: 'dijkstra_near'|'prm_r"):
+    with pytest.raises(
+        ValueError, match="population member='keep_left' is not valid; valid: 'dijkstra_near'|'prm_r"
+    ):
         PopulationOpponent(core(domain), members=["keep_left"])  # a held-out member asked for in training
 
 
@@ -75,14 +72,18 @@ def test_each_world_plays_its_own_member(domain):
     view = EgoView(env, opponent="population", opponent_kwargs={"members": DETERMINISTIC[domain]})
     td = view.reset()
     table = population(domain, "training")
-    alone = [make_opponent(table[name].opponent, env, controlled=(1,), ego=0, **table[name].kwargs(domain))
-             for name in DETERMINISTIC[domain]]
+    alone = [
+        make_opponent(table[name].opponent, env, controlled=(1,), ego=0, **table[name].kwargs(domain))
+        for name in DETERMINISTIC[domain]
+    ]
     worlds = torch.arange(env.num_envs)
     for step in range(6):
         core_in = view._last  # the view writes the joint action into it, then steps the core
         expected = torch.stack([member(core_in.clone()).get(ACTION_KEY)[:, 1] for member in alone])
         td = view.step(td.set("action", view.action_spec.zero()))["next"]
-        assert torch.equal(core_in.get(ACTION_KEY)[:, 1], expected[view.opponent.member, worlds]), f"step {step}"
+        assert torch.equal(core_in.get(ACTION_KEY)[:, 1], expected[view.opponent.member, worlds]), (
+            f"step {step}"
+        )
     assert len(set(view.opponent.member.tolist())) > 1
 
 
@@ -92,10 +93,16 @@ def test_a_population_plays_the_two_agent_sidewalk_only():
 
 
 def test_the_shipped_partners_are_small_weights_only_files_in_the_wheel():
-    learned = [m.params["partner"] for split in POPULATIONS["continuous"].values() for m in split.values()
-               if m.opponent == "policy"]
+    learned = [
+        m.params["partner"]
+        for split in POPULATIONS["continuous"].values()
+        for m in split.values()
+        if m.opponent == "policy"
+    ]
     assert sorted(learned) == sorted(f"{algo}_seed{seed}" for algo in ("ippo", "mappo") for seed in range(3))
-    patterns = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["sidewalk"]
+    patterns = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"][
+        "sidewalk"
+    ]
     for name in learned:
         file = PARTNERS_DIR / "continuous" / name / "policy.pt"
         assert file.stat().st_size < 100_000

@@ -31,7 +31,9 @@ from sidewalk.opponents.base import Opponent, env_domain
 from sidewalk.opponents.prm import steer_toward
 
 STYLES = ("keep_left", "keep_right", "always_yields", "never_yields", "hesitates")
-LANE_FRACTION = 0.6  # keep_left/keep_right: the lane's offset, of the free half-width (0.72 m; 2 of 3 grid cells)
+LANE_FRACTION = (
+    0.6  # keep_left/keep_right: the lane's offset, of the free half-width (0.72 m; 2 of 3 grid cells)
+)
 YIELD_FRACTION = 0.5  # always_yields: steps aside once an oncoming agent is within half the sidewalk's length
 HESITATE_PROB = 0.1  # hesitates: the chance per step of a pause ...
 HESITATE_STEPS = 5  # ... of this many steps
@@ -87,7 +89,9 @@ class ConventionOpponent(Opponent):
         # +1: the lane lies to the agent's left of the centre line; keep_right mirrors it.
         self._side = -1.0 if style == "keep_right" else 1.0
         self._pause_left: torch.Tensor | None = None  # (B, C) steps of the current pause still to wait
-        self._ticks: torch.Tensor | None = None  # (B,) steps since the world's reset: the grid's back-and-forth
+        self._ticks: torch.Tensor | None = (
+            None  # (B,) steps since the world's reset: the grid's back-and-forth
+        )
         if self._grid:
             layout = env.layout
             half = (layout.rows - 1) / 2
@@ -141,8 +145,13 @@ class ConventionOpponent(Opponent):
         return waiting & ~done[:, self._controlled_index].squeeze(-1)
 
     def _yielding(
-        self, along: torch.Tensor, heading: torch.Tensor, state: torch.Tensor, done: torch.Tensor,
-        present: torch.Tensor | None, reach: float,
+        self,
+        along: torch.Tensor,
+        heading: torch.Tensor,
+        state: torch.Tensor,
+        done: torch.Tensor,
+        present: torch.Tensor | None,
+        reach: float,
     ) -> torch.Tensor:
         """Bool (B, C): for always_yields, the controlled agents with another present agent ahead (along their way,
         ``heading`` ±1) within ``reach``; False for other styles. ``along`` (B, N): every agent's coordinate along
@@ -159,7 +168,11 @@ class ConventionOpponent(Opponent):
     # ---- the continuous world ---------------------------------------------------------------------------------
 
     def _unicycle_controls(
-        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None,
+        self,
+        state: torch.Tensor,
+        goal: torch.Tensor,
+        done: torch.Tensor,
+        present: torch.Tensor | None,
         waiting: torch.Tensor,
     ) -> torch.Tensor:
         layout, index = self.env.layout, self._controlled_index
@@ -182,8 +195,13 @@ class ConventionOpponent(Opponent):
         own = own.clone()
         own[..., 3] = torch.where(torch.sin(own[..., 3]) == 0, own[..., 3] + 1e-6, own[..., 3])
         accel, turn = steer_toward(
-            own.permute(2, 1, 0), own_goal.permute(2, 1, 0), waypoint, self.env.params, self._x_limits,
-            self._y_limits, speed_scale=(~stopped).t().float(),
+            own.permute(2, 1, 0),
+            own_goal.permute(2, 1, 0),
+            waypoint,
+            self.env.params,
+            self._x_limits,
+            self._y_limits,
+            speed_scale=(~stopped).t().float(),
         )
         action = torch.stack([accel, turn], dim=-1).transpose(0, 1)  # (B, C, 2)
         return action.masked_fill(done[:, index], 0.0)
@@ -191,7 +209,11 @@ class ConventionOpponent(Opponent):
     # ---- the grid ---------------------------------------------------------------------------------------------
 
     def _grid_moves(
-        self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, present: torch.Tensor | None,
+        self,
+        state: torch.Tensor,
+        goal: torch.Tensor,
+        done: torch.Tensor,
+        present: torch.Tensor | None,
         waiting: torch.Tensor,
     ) -> torch.Tensor:
         layout, index = self.env.layout, self._controlled_index
@@ -202,7 +224,9 @@ class ConventionOpponent(Opponent):
         lane_row = centre - heading * int(self._side) * self._lane_cells
         # Back onto the goal's row once the steps left along the sidewalk are no more than those across.
         target_row = torch.where((goal_col - col).abs() <= (lane_row - goal_row).abs(), goal_row, lane_row)
-        yielding = self._yielding(state[..., 1].float(), heading.float(), state, done, present, self._yield_cells)
+        yielding = self._yielding(
+            state[..., 1].float(), heading.float(), state, done, present, self._yield_cells
+        )
         aside_row = centre + heading * self._aside_cells  # against the wall on its right
         target_row = torch.where(yielding, aside_row, target_row)
         across = torch.where(target_row < row, UP, DOWN)

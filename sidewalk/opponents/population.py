@@ -51,8 +51,10 @@ def _learned(partner: str) -> Member:
     return Member("policy", {"partner": partner})
 
 
-_HELDOUT_CONVENTIONS = {style: _convention(style) for style in
-                        ("keep_left", "keep_right", "always_yields", "never_yields", "hesitates")}
+_HELDOUT_CONVENTIONS = {
+    style: _convention(style)
+    for style in ("keep_left", "keep_right", "always_yields", "never_yields", "hesitates")
+}
 # Training conventions: the same five habits at other settings (a nearer lane, a later yield, an offset line,
 # shorter and more frequent pauses), so the held-out ones are new partners, not replays.
 _TRAINING_CONVENTIONS = {
@@ -76,8 +78,10 @@ POPULATIONS: dict[str, dict[str, dict[str, Member]]] = {
         },
     },
     "discrete": {
-        "training": {"dijkstra_near": Member("dijkstra", {"avoid_radius_cells": 1, "avoid_cost": 5.0}),
-                     **_TRAINING_CONVENTIONS},
+        "training": {
+            "dijkstra_near": Member("dijkstra", {"avoid_radius_cells": 1, "avoid_cost": 5.0}),
+            **_TRAINING_CONVENTIONS,
+        },
         "heldout": {"dijkstra": Member("dijkstra"), **_HELDOUT_CONVENTIONS},
     },
 }
@@ -113,7 +117,9 @@ class PopulationOpponent(Opponent):
     name = "population"
     scripted = True  # needs no run folder: its learned members ship with the package
     listed = False  # not one of the paper's opponents: chosen by name only
-    per_replica = False  # draws through env.randint, which splits by replica; members handle replicas themselves
+    per_replica = (
+        False  # draws through env.randint, which splits by replica; members handle replicas themselves
+    )
     batch_invariant = True
 
     def __init__(
@@ -135,7 +141,9 @@ class PopulationOpponent(Opponent):
             check_choice("population member", name, table)
         self.names = names
         self.members = torch.nn.ModuleList(
-            make_opponent(table[name].opponent, env, controlled=self.controlled, ego=ego, **table[name].kwargs(domain))
+            make_opponent(
+                table[name].opponent, env, controlled=self.controlled, ego=ego, **table[name].kwargs(domain)
+            )
             for name in names
         )
         self.in_keys = sorted({key for member in self.members for key in member.in_keys}, key=str)
