@@ -63,6 +63,6 @@ def test_the_runner_writes_the_score_and_the_report_shows_it(tmp_path, matrix, m
     assert "Ad-hoc score: partners never met" in (tmp_path / "report.md").read_text()
 
 
-def test_heldout_partners_need_the_two_agent_sidewalk(tmp_path):
+def test_a_misspelt_shorthand_names_heldout_among_the_valid_partners():
     with pytest.raises(CrossplayError, match="unknown partner 'held_out'.*'heldout'"):
         run_crossplay(ROWS[:1], "held_out", episodes=2, show_progress=False)
