@@ -6,14 +6,16 @@
 
 A RUN_DIR is a run folder with policy.pt, or a sweep folder standing for every run in it. Partners (default
 scripted,rows): scripted opponents by name, `scripted` (every one of the rows' domain), `rows` (every row's run),
-run or sweep folders. A row plays the agent it trained as; the partner plays every other agent; both act greedily.
+`heldout` (the held-out partner population: the ad-hoc score, docs/guide/adhoc.md), run or sweep folders. A row
+plays the agent it trained as; the partner plays every other agent; both act greedily.
 Every cell plays one episode in each of --episodes worlds seeded --seed + 1000003 (the stream a run of that seed
 is evaluated on), in the first row's training world at --noise (default: the rows' training noise when they agree).
 
 Writes into --out: crossplay.csv (one row per pairing), crossplay.json (how it was made), figures/ (heatmaps of
 success, collisions and team success, by run and by condition) and report.md (the section runners/report.py also
-includes). Put what the matrix shows in --out/notes.md and --redraw. Exit status: 0, or 2 for bad arguments or a
-pairing that cannot be played (a missing policy.pt, an unknown partner, a run of another domain or scenario).
+includes), and with `heldout` adhoc.csv (each condition's team success with the held-out partners: IQM over
+seeds × partners, 95 % interval). Put what the matrix shows in --out/notes.md and --redraw. Exit status: 0, or 2
+for bad arguments or a pairing that cannot be played (a missing policy.pt, an unknown partner, a run of another domain or scenario).
 """
 
 from __future__ import annotations
@@ -38,8 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--partners",
         default="scripted,rows",
-        help="comma-separated: scripted opponents' names, 'scripted', 'rows', run or sweep folders "
-        "(default: scripted,rows)",
+        help="comma-separated: scripted opponents' names, 'scripted', 'rows', 'heldout' (the held-out partner "
+        "population), run or sweep folders (default: scripted,rows)",
     )
     parser.add_argument("--out", help="output folder (required unless --redraw)")
     parser.add_argument("--episodes", type=int, default=256, help="episodes per cell, one per world (default 256)")

@@ -11,7 +11,9 @@ The pairing:
 - a column is a scripted opponent of the domain (``random``, ``dijkstra``/``prm``) or a learned partner (a run
   folder, ``sidewalk.opponents.policy.PolicyOpponent``); it plays every other agent. By default the columns are
   the domain's scripted opponents and every row, so the matrix holds each run with itself (self-pairs), with the
-  other seeds of its condition (cross-seed pairs) and with the other conditions;
+  other seeds of its condition (cross-seed pairs) and with the other conditions. ``heldout`` adds the domain's
+  held-out partner population (``sidewalk.opponents.population``), whose team success per condition is the ad-hoc
+  score (``sidewalk.report.crossplay.adhoc_table``): partners no learner met in training;
 - both sides act greedily (the evaluation policy: greedy Q, the distribution's mode), as in the runs' own
   evaluations;
 - every cell plays one episode in each of ``episodes`` worlds of the core env seeded ``seed + EVAL_SEED_OFFSET``
@@ -32,7 +34,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +57,7 @@ from sidewalk.opponents.policy import (
 
 SCRIPTED = "scripted"  # --partners shorthand: the domain's scripted opponents
 ROWS = "rows"  # --partners shorthand: every row's run folder
+HELDOUT = "heldout"  # --partners shorthand: the held-out partner population of the rows' domain (ad-hoc teamwork)
 DEFAULT_PARTNERS = (SCRIPTED, ROWS)
 # The CSV's columns, in order (see ``crossplay``'s docstring).
 COLUMNS = (
@@ -76,6 +79,7 @@ COLUMNS = (
     "return",
     "episodes",
     "skipped",
+    "heldout",
 )
 METRICS = {  # CSV column -> key of sidewalk.evaluate's metrics in the row's ego view
     "success": "ego/success_rate",
@@ -112,8 +116,11 @@ class Player:
 class Column:
     """A partner: a scripted opponent (``player`` None) or a learned policy."""
 
-    name: str  # the opponent's name, or the run folder as given
+    name: str  # the opponent's name, or the run folder as given; a held-out member: "heldout:<member>"
     player: Player | None = None
+    opponent: str = ""  # a scripted partner's registered opponent, when ``name`` is not one
+    params: dict[str, Any] = field(default_factory=dict)  # ... and its settings
+    heldout: bool = False  # a member of the held-out population
 
     @property
     def kind(self) -> str:
@@ -121,6 +128,8 @@ class Column:
 
     @property
     def label(self) -> str:
+        if self.heldout:
+            return self.name.split(":", 1)[1]
         return self.name if self.player is None else self.player.label
 
 
@@ -211,11 +220,30 @@ def label_players(players: Sequence[Player]) -> None:
         player.label = labels[player.condition]
 
 
+def heldout_columns(domain: str, known: dict[Path, Player]) -> list[Column]:
+    """The held-out partner population of ``domain`` (``sidewalk.opponents.population``) as columns named
+    ``heldout:<member>``; a shipped learned member already in ``known`` shares its ``Player``."""
+    from sidewalk.opponents.population import population
+
+    columns = []
+    for name, member in population(domain, "heldout").items():
+        kwargs = member.kwargs(domain)
+        if member.opponent == "policy":
+            path = Path(kwargs["path"])
+            player = known.get(path.resolve()) or load_player(path)
+            known[path.resolve()] = player
+            columns.append(Column(f"{HELDOUT}:{name}", player, heldout=True))
+        else:
+            columns.append(Column(f"{HELDOUT}:{name}", opponent=member.opponent, params=kwargs, heldout=True))
+    return columns
+
+
 def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], domain: str) -> list[Column]:
     """The columns of the matrix from ``--partners`` (a comma-separated string or a list; default
     ``scripted,rows``): a scripted opponent's name, ``scripted`` (every scripted opponent of ``domain``), ``rows``
-    (every row's run), or a run or sweep folder (its learned policies). Rows' folders given again share their
-    ``Player``. Raises ``CrossplayError`` for an unknown name or an opponent of another domain."""
+    (every row's run), ``heldout`` (the held-out partner population: the ad-hoc score's partners), or a run or sweep
+    folder (its learned policies). Rows' folders given again share their ``Player``. Raises ``CrossplayError`` for
+    an unknown name or an opponent of another domain."""
     from sidewalk.opponents.base import available_opponents
     from sidewalk.registry import OPPONENTS
 
@@ -242,6 +270,9 @@ def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], d
         elif item == ROWS:
             for player in rows:
                 add(Column(str(player.path), player))
+        elif item == HELDOUT:
+            for column in heldout_columns(domain, known):
+                add(column)
         elif item in scripted:
             add(Column(item))
         elif item in OPPONENTS:
@@ -257,7 +288,7 @@ def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], d
         else:
             raise CrossplayError(
                 f"unknown partner {item!r}: not a scripted opponent of the {domain} domain "
-                f"({', '.join(scripted)}), not {SCRIPTED!r} or {ROWS!r}, and not a folder"
+                f"({', '.join(scripted)}), not {SCRIPTED!r}, {ROWS!r} or {HELDOUT!r}, and not a folder"
             )
     return columns
 
@@ -465,7 +496,8 @@ class Arena:
         core = self.core(ego)
         if column.player is None:
             others = tuple(agent for agent in range(core.n_agents) if agent != ego)
-            opponent = make_opponent(column.name, core, controlled=others, ego=ego)
+            opponent = make_opponent(column.opponent or column.name, core, controlled=others, ego=ego,
+                                     **column.params)
         else:
             opponent = self._player(column.player, ego, as_row=False)
         view = EgoView(core, opponent, ego=ego)
@@ -532,6 +564,7 @@ def crossplay(
                 "self_pair": partner is not None and partner.path.resolve() == row.path.resolve(),
                 "same_condition": partner is not None and partner.condition == row.condition,
                 "skipped": cell_problem(row, column, world),
+                "heldout": column.heldout,
             }
             if not record["skipped"]:
                 metrics = arena.evaluate(row, column)
@@ -577,6 +610,11 @@ def run_crossplay(
     domain = rows[0].partner.domain
     columns = resolve_partners(partners, rows, domain)
     world = evaluation_world(rows, noise)
+    if any(column.heldout for column in columns) and (world.layout != "sidewalk" or _n_agents(domain, world) != 2):
+        raise CrossplayError(
+            f"--partners {HELDOUT} holds the two-agent sidewalk's partners; the rows play env.layout={world.layout!r} "
+            f"with {_n_agents(domain, world)} agents"
+        )
     learned = list(rows) + [c.player for c in columns if c.player is not None and all(c.player is not r for r in rows)]
     label_players(learned)
     check_players(learned, world, rows[0])

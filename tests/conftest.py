@@ -30,3 +30,13 @@ def uninterrupted_run(tmp_path_factory):
         return finished[key]
 
     return run
+
+
+@pytest.fixture
+def one_thread():
+    """One torch thread: scripted opponents and small networks run many small operations, where on 2 busy cores a
+    second intra-op thread only adds waiting."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)

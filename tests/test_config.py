@@ -92,7 +92,7 @@ def test_self_play_defaults_to_a_multiagent_learner_and_its_shaping(overrides, a
     assert (cfg.algo.name, cfg.reward.c_progress) == (algo, c_progress)
 
 
-@pytest.mark.parametrize("name", ["random", "dijkstra", "prm"])
+@pytest.mark.parametrize("name", ["random", "dijkstra", "prm", "convention", "population"])
 def test_opponent_yaml_mirrors_the_constructor_defaults(name):
     import inspect
 

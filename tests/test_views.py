@@ -299,7 +299,7 @@ def test_views_without_an_opponent_reject_one():
 
 
 def test_unknown_opponent_names_the_valid_ones():
-    with pytest.raises(ValueError, match="'dijkstra', 'policy', 'prm', 'random'"):
+    with pytest.raises(ValueError, match="'convention', 'dijkstra', 'policy', 'population', 'prm', 'random'"):
         make_view("ego", core("discrete"), opponent="greedy")
 
 

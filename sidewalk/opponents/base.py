@@ -45,6 +45,9 @@ class Opponent(TensorDictModuleBase):
     name: ClassVar[str | None] = None  # the config choice (``opponent=NAME``); a class with a name registers itself
     domains: ClassVar[tuple[str, ...]] = ("discrete", "continuous")  # the domains it plays
     scripted: ClassVar[bool] = True  # False: a learned partner, which needs a run folder to play
+    # False: chosen by name only, left out of the default lists (``available_opponents(scripted_only=True)``:
+    # cross-play's "scripted" columns, the benchmarks), which hold the paper's opponents.
+    listed: ClassVar[bool] = True
     # On a replicated env: True builds one instance per replica, on a ReplicaEnv (that replica's worlds and generator),
     # for opponents that draw from env.generator or build something from the env's seed; False: one instance for all
     # replicas (it draws nothing, or draws through env.rand/env.randint, which split the worlds by replica).
@@ -178,9 +181,10 @@ def opponent_class(name: str) -> type[Opponent]:
 
 
 def available_opponents(domain: str | None = None, scripted_only: bool = False) -> list[str]:
-    """Names of the registered opponents, optionally only those playing ``domain``, or only the scripted ones."""
+    """Names of the registered opponents, optionally only those playing ``domain``, or only the scripted ones
+    that the default lists hold (``listed``)."""
     return OPPONENTS.names(
-        lambda cls: (domain is None or domain in cls.domains) and (cls.scripted or not scripted_only)
+        lambda cls: (domain is None or domain in cls.domains) and (not scripted_only or (cls.scripted and cls.listed))
     )
 
 

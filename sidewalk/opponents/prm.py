@@ -651,24 +651,9 @@ class PRMOpponent(Opponent):
         self, state: torch.Tensor, goal: torch.Tensor, done: torch.Tensor, waypoint: torch.Tensor
     ) -> torch.Tensor:
         """(acceleration, turn) of the controlled agents, (B, C, 2), steering toward ``waypoint`` (2, C, B)."""
-        p = self._params
         own = state[:, self._controlled_index].permute(2, 1, 0)  # (4, C, B)
-        x, y, speed, heading = own.unbind(0)
-        goal_x, goal_y = goal[:, self._controlled_index].permute(2, 1, 0).unbind(0)
-        error = torch.atan2(waypoint[1] - y, waypoint[0] - x) - heading
-        error = torch.remainder(error + math.pi, 2 * math.pi) - math.pi
-        turn = error.clamp(-p.max_turn_rad, p.max_turn_rad)
-
-        # Never faster than what stops the agent at its goal, or before the wall straight ahead.
-        cos, sin = torch.cos(heading), torch.sin(heading)
-        (x_low, x_high), (y_low, y_high) = self._x_limits, self._y_limits
-        room_x = torch.where(cos > 0, (x_high - x) / cos, (x - x_low) / -cos)
-        room_y = torch.where(sin > 0, (y_high - y) / sin, (y - y_low) / -sin)
-        room = torch.minimum(room_x, room_y) - WALL_MARGIN_M  # division by 0 gives inf: no wall ahead
-        room = torch.minimum(room, torch.hypot(goal_x - x, goal_y - y)).clamp(min=0.0)
-        stopping_speed = torch.sqrt(2 * BRAKE_FRACTION * p.max_accel_mps2 * room)
-        target_speed = stopping_speed.clamp(max=p.max_speed_mps) * torch.cos(error).clamp(min=0.0)
-        accel = ((target_speed - speed) / p.dt_s).clamp(-p.max_accel_mps2, p.max_accel_mps2)
+        own_goal = goal[:, self._controlled_index].permute(2, 1, 0)
+        accel, turn = steer_toward(own, own_goal, waypoint, self._params, self._x_limits, self._y_limits)
         action = torch.stack([accel, turn], dim=-1).transpose(0, 1)  # (B, C, 2)
         return action.masked_fill(done[:, self._controlled_index], 0.0)
 
@@ -678,6 +663,44 @@ class PRMOpponent(Opponent):
             return torch.ones(state.shape[:2], dtype=torch.bool, device=state.device)
         at_goal = (state[..., :2] - goal).square().sum(-1) <= self._params.goal_radius_m**2
         return ~done.squeeze(-1) | at_goal
+
+
+def steer_toward(
+    own: torch.Tensor,
+    goal: torch.Tensor,
+    waypoint: torch.Tensor,
+    params: Any,
+    x_limits: tuple[float, float],
+    y_limits: tuple[float, float],
+    speed_scale: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The PRM's unicycle controller: (acceleration, turn), each (C, B), of agents ``own`` (4, C, B) = (x, y, speed,
+    heading) steering toward ``waypoint`` (2, C, B), their goals ``goal`` (2, C, B).
+
+    Turn toward the waypoint as far as ``params.max_turn_rad`` allows; aim for full speed, scaled by the cosine of
+    the heading error (zero when the waypoint is behind) and by ``speed_scale`` (C, B) when given (0: brake to a
+    stop), capped so that half the maximum deceleration stops the agent at its goal and before the wall straight
+    ahead (the centre's ``x_limits``, ``y_limits``)."""
+    p = params
+    x, y, speed, heading = own.unbind(0)
+    goal_x, goal_y = goal.unbind(0)
+    error = torch.atan2(waypoint[1] - y, waypoint[0] - x) - heading
+    error = torch.remainder(error + math.pi, 2 * math.pi) - math.pi
+    turn = error.clamp(-p.max_turn_rad, p.max_turn_rad)
+
+    # Never faster than what stops the agent at its goal, or before the wall straight ahead.
+    cos, sin = torch.cos(heading), torch.sin(heading)
+    (x_low, x_high), (y_low, y_high) = x_limits, y_limits
+    room_x = torch.where(cos > 0, (x_high - x) / cos, (x - x_low) / -cos)
+    room_y = torch.where(sin > 0, (y_high - y) / sin, (y - y_low) / -sin)
+    room = torch.minimum(room_x, room_y) - WALL_MARGIN_M  # division by 0 gives inf: no wall ahead
+    room = torch.minimum(room, torch.hypot(goal_x - x, goal_y - y)).clamp(min=0.0)
+    stopping_speed = torch.sqrt(2 * BRAKE_FRACTION * p.max_accel_mps2 * room)
+    target_speed = stopping_speed.clamp(max=p.max_speed_mps) * torch.cos(error).clamp(min=0.0)
+    if speed_scale is not None:
+        target_speed = target_speed * speed_scale
+    accel = ((target_speed - speed) / p.dt_s).clamp(-p.max_accel_mps2, p.max_accel_mps2)
+    return accel, turn
 
 
 # ---- roadmap, built once per layout -------------------------------------------------------------------------------

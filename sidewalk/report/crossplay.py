@@ -22,6 +22,7 @@ from matplotlib.patches import Rectangle
 from sidewalk.report.figures import _save, slug
 from sidewalk.report.runs import shown_path
 from sidewalk.report.tables import NumberLog, fmt
+from sidewalk.stats import interval_estimate
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +30,8 @@ CROSSPLAY_CSV = "crossplay.csv"
 CROSSPLAY_JSON = "crossplay.json"
 CONVENTIONS_CSV = "conventions.csv"  # the convention each row's policy follows with itself (sidewalk.crossplay.convention)
 NOTES = "notes.md"  # what the matrix shows, written by hand beside the CSV
+ADHOC_CSV = "adhoc.csv"  # the ad-hoc score of each condition (adhoc_table), beside the matrix
+ADHOC_COLUMNS = ("condition", "runs", "partners", "iqm", "low", "high", "mean", "note")
 REPORT = "report.md"
 # Heatmaps: CSV column -> (title, colour map); every value is a rate in [0, 1].
 HEATMAP_METRICS = {
@@ -126,6 +129,54 @@ def condition_table(frame: pd.DataFrame, metric: str) -> tuple[pd.DataFrame, pd.
     return mean.astype(float), pairs
 
 
+def adhoc_table(frame: pd.DataFrame) -> pd.DataFrame | None:
+    """The ad-hoc score of each condition (``ADHOC_COLUMNS``): the team success of its runs (seeds) with every
+    held-out partner (``heldout`` cells), as the interquartile mean of those runs × partners scores with a 95 %
+    stratified-bootstrap interval over the runs (``sidewalk.stats.interval_estimate``); ``mean`` the plain mean.
+    None when the matrix has no held-out partner (``--partners heldout``)."""
+    if "heldout" not in frame or not frame["heldout"].astype(bool).any():
+        return None
+    used = frame[frame["heldout"].astype(bool) & (frame["skipped"] == "")]
+    records = []
+    for label in _ordered(used["row_label"]):
+        group = used[used["row_label"] == label]
+        scores = group.pivot_table(index="row_run", columns="partner", values="team_success", aggfunc="mean")
+        interval = interval_estimate(scores.to_numpy(dtype=float), "iqm")
+        records.append({
+            "condition": label, "runs": len(scores), "partners": scores.shape[1], "iqm": interval.point,
+            "low": interval.low, "high": interval.high, "mean": float(np.nanmean(scores.to_numpy(dtype=float))),
+            "note": interval.note,
+        })
+    return pd.DataFrame(records, columns=list(ADHOC_COLUMNS))
+
+
+def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None) -> list[str]:
+    """The ad-hoc score's table, where the matrix has held-out partners."""
+    table = adhoc_table(frame)
+    if table is None:
+        return []
+    partners = ", ".join(f"`{name}`" for name in _ordered(frame.loc[frame["heldout"].astype(bool), "partner_label"]))
+    md = [
+        f"{sub} Ad-hoc score: partners never met",
+        "",
+        (
+            f"Team success with every partner of the held-out population ({partners}), none of which any learner met "
+            "in training: the interquartile mean over each condition's runs × partners, with its 95 % "
+            "stratified-bootstrap interval over runs (seeds)."
+        ),
+        "",
+        "| condition | runs | partners | IQM | 95 % interval | mean |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in table.itertuples():
+        interval = f"[{fmt(r.low)}, {fmt(r.high)}]" if not math.isnan(r.low) else r.note
+        md.append(f"| {r.condition} | {r.runs} | {r.partners} | {fmt(r.iqm)} | {interval} | {fmt(r.mean)} |")
+        if numbers is not None:
+            numbers.add("crossplay", None, f"row: {r.condition}; partners: held-out population", "team_success",
+                        "iqm", float(r.iqm), int(r.runs), "ad-hoc score: IQM over runs × held-out partners")
+    return md + [""]
+
+
 def draw_heatmap(
     table: pd.DataFrame,
     title: str,
@@ -204,7 +255,8 @@ def crossplay_section(
     ``folder``: where the matrix's ``crossplay.csv`` is (linked for every cell's numbers)."""
     figures = figures if figures is not None else []
     sub = heading.split(" ", 1)[0] + "#"
-    md = [heading, ""] + _how_it_was_made(frame, meta, out, folder) + _conventions_lines(meta, sub)
+    md = [heading, ""] + _how_it_was_made(frame, meta, out, folder) + _adhoc_lines(frame, sub, numbers)
+    md += _conventions_lines(meta, sub)
     for metric, (title, cmap) in HEATMAP_METRICS.items():
         md += _metric_lines(frame, metric, title, cmap, figures_dir, prefix, out, figures, numbers, sub)
     return md + _skipped_lines(frame, sub) + _notes_lines(meta, sub)
@@ -341,7 +393,7 @@ def _notes_lines(meta: dict[str, Any], sub: str) -> list[str]:
 
 def write_crossplay_report(folder: str | Path) -> Path:
     """Draw the figures of the cross-play folder ``folder`` into ``folder/figures`` and write its
-    ``report.md`` (the section under a title); returns the report's path."""
+    ``report.md`` (the section under a title) and, with held-out partners, ``adhoc.csv``; returns the report's path."""
     from sidewalk.run_folder import atomic_write
 
     folder = Path(folder)
@@ -350,6 +402,9 @@ def write_crossplay_report(folder: str | Path) -> Path:
     figures_dir.mkdir(parents=True, exist_ok=True)
     md = ["# Sidewalk cross-play", ""]
     md += crossplay_section(frame, meta, figures_dir, folder, folder=folder)
+    adhoc = adhoc_table(frame)
+    if adhoc is not None:
+        atomic_write(folder / ADHOC_CSV, lambda tmp: adhoc.to_csv(tmp, index=False))
     report = folder / REPORT
     atomic_write(report, lambda tmp: tmp.write_text("\n".join(md) + "\n"))
     log.info("wrote %s", report)
