@@ -12,6 +12,7 @@
     python runners/bench.py scenarios --agents 2 4 8 16   # ~3 min: env-steps/s at N agents, ours vs VMAS navigation
     python runners/bench.py multiagent         # ~12 min: IPPO training frames/s, ours vs TorchRL's VMAS example
     python runners/bench.py groups             # ~25 min: 5 seeds as one process (replicas=5) vs one after another
+    python runners/bench.py image_ppo          # ~3 min: s/iteration of grid IPPO/MAPPO, image vs vector settings
 
 Sections: ``env`` (env-steps/s of both domains beside VMAS give_way), ``planning`` (µs per plan per world of the
 scripted planners beside scipy; with ``--baseline``, a checkout directory or revision, CPU ms per plan of both
@@ -30,7 +31,8 @@ worlds and 1 and 2 threads beside TorchRL's MAPPO/IPPO example on VMAS ``navigat
 batch, epochs and minibatches: ``--ma-steps``, ``--ma-iterations``, ``--ma-warmup``, ``--ma-learners``; not run by
 default), ``groups`` (the wall-clock of 5 seeds trained as one process, ``replicas=5``, beside the same runs one
 after another, TRPO continuous and DQN grid: ``--setups``, ``--replicas``, ``--iterations``, ``--full``; not run by
-default). Flags after the sections that are not the ones below go
+default), ``image_ppo`` (seconds per iteration of grid IPPO and MAPPO at their image settings beside the vector
+settings, interleaved in one process; not run by default). Flags after the sections that are not the ones below go
 to the sections that take flags of their own (``learners``: ``--opponent``, ``--frames``, ``--seeds``,
 ``--setups``, ``--learners``, ``--noise``, ``--eval-episodes``; see ``python -m sidewalk.bench.learners -h``).
 A section module has ``run(**kwargs) -> list[dict]``; it may add ``parse_options(argv) -> kwargs`` (its own flags,
@@ -59,6 +61,7 @@ SECTIONS = {
     "scenarios": "sidewalk.bench.scenarios",
     "multiagent": "sidewalk.bench.multiagent",
     "groups": "sidewalk.bench.groups",
+    "image_ppo": "sidewalk.bench.image_ppo",
 }
 DEFAULT_SECTIONS = ("env", "planning", "views")
 
