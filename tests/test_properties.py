@@ -602,7 +602,8 @@ def plane_step_holds(env, before: dict, action: torch.Tensor, after: dict, steps
     holds(~sure | (now["reached_goal"] == arrives), "arrival: within the goal radius without collision")
     life_cycle_holds(env, before, after, now, steps)
     # Shaping: c_potential · d², plus c_progress times the shrinking of the path to the goal; where a box may stand
-    # between an agent and its goal the path bends, and the progress term is only bounded by the distance walked --
+    # between an agent and its goal the path bends, and the progress term is only bounded by the distance walked (and
+    # the path's jump where a line of sight grazes a corner) --
     # unless the step itself came within a radius of a box: a disc may graze a box's corner within a step (only its
     # centre's path and its end are checked), a shortcut no path around the box takes (then the term is not bounded).
     goal_x, goal_y = after["goal"].double().unbind(-1)
@@ -615,7 +616,9 @@ def plane_step_holds(env, before: dict, action: torch.Tensor, after: dict, steps
     shaping = p.rewards.c_potential * to_goal.square() + c_progress * (d0 - d1) * straight
     walked = torch.hypot(x1 - x0, y1 - y0)
     clipped = segment_meets_box(env, x0, y0, x1, y1, p.agent_radius_m - MARGIN)
-    slack = torch.where(clipped, 1e9, abs(c_progress) * (walked + 1e-3)) * ~straight
+    # Where a line of sight grazes a box's corner the path may jump by up to 2r(√2 - 1) (sidewalk.envs.geodesic).
+    jump = 2 * p.agent_radius_m * (2**0.5 - 1)
+    slack = torch.where(clipped, 1e9, abs(c_progress) * (walked + jump + 1e-3)) * ~straight
     reward_holds(env, before, after, now, shaping, slack)
 
 
