@@ -203,6 +203,21 @@ def test_advantage_learning_is_the_loss_on_rewards_less_the_action_gaps(name):
     torch.testing.assert_close(ours.loss.state_dict(), theirs.loss.state_dict())
 
 
+def test_qmix_advantage_learning_pays_the_mixed_gap_to_the_greedy_joint_action():
+    ours, env = make_learner("qmix", advantage_learning=0.9)
+    theirs, _ = make_learner("qmix")
+    batch = ours.transitions(random_batch(env, 8))
+    key, gaps = ours.reward_gaps(batch)
+    assert bool((gaps >= 0).all()) and bool((gaps > 0).any())  # the mixer is monotone in every agent's Q
+    greedy = batch.clone()  # every in-play agent taking its best action under the target network: no gap
+    with torch.no_grad(), ours.loss.target_local_value_network_params.to_module(ours.loss.local_value_network):
+        greedy[ACTION] = ours.q_network(batch[OBS]).argmax(-1)
+    torch.testing.assert_close(ours.reward_gaps(greedy)[1], torch.zeros_like(gaps))
+    shifted = batch.clone()
+    shifted[key] = batch[key] - 0.9 * gaps
+    torch.testing.assert_close(ours._advantage_learning_step(batch.clone()), loss_module_step(theirs, shifted))
+
+
 @pytest.mark.parametrize("name", LEARNERS)
 def test_share_params_false_gives_agents_their_own_q(name):
     observation = SelfPlayView(DiscreteSidewalkEnv(1, seed=0)).reset().get(OBS)[:, :1]  # agent 0's view

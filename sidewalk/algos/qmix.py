@@ -32,8 +32,6 @@ class QMIXConfig(VDNConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         check_int("algo.mixing_embed_dim", self.mixing_embed_dim, 1)
-        if self.advantage_learning:  # the mixed gap needs the target mixer at the state: not built
-            raise ValueError(f"algo.advantage_learning={self.advantage_learning} is not available for algo=qmix; valid: 0")
 
 
 class QMIX(VDN):

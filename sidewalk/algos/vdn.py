@@ -82,8 +82,20 @@ class VDN(IQL):
         return loss
 
     def reward_gaps(self, sample: TensorDictBase) -> tuple[NestedKey, torch.Tensor]:
-        """The team reward and Q_tot's gap to the best joint action: the sum of the in-play agents' gaps."""
-        return ("next", "reward"), (self.action_gaps(sample) * sample.get(self.MASK_KEY).squeeze(-1)).sum(-1, True)
+        """The team reward and Q_tot's gap to the best joint action under the target networks: the target mixer at
+        every agent's best Q-value less at the taken ones (a monotone mixer's best joint action is every agent's
+        best; for VDN's sum it is the in-play agents' gaps summed)."""
+        network, mixer = getattr(self.loss, self.AGENT_NETWORK), self.loss.mixer_network
+        with (
+            torch.no_grad(),
+            getattr(self.loss, f"target_{self.AGENT_NETWORK}_params").to_module(network),
+            self.loss.target_mixer_network_params.to_module(mixer),
+        ):
+            q = self.q_network(sample[self.OBSERVATION_KEY])
+            chosen = q.gather(-1, sample[self.ACTION_KEY].unsqueeze(-1))
+            rest = [sample.get(key) for key in mixer.in_keys[1:]]  # the mask, and QMIX's state
+            gap = mixer.module(q.amax(-1, keepdim=True), *rest) - mixer.module(chosen, *rest)
+        return ("next", "reward"), gap
 
     def transitions(self, batch: TensorDictBase) -> TensorDictBase:
         kept = batch.select(*self.TRANSITION_KEYS)
