@@ -392,3 +392,19 @@ def test_bench_section_reports_every_view():
         "-",
     ) in views
     assert all(row["env_steps_per_s"] or row["note"] for row in rows)
+
+
+@pytest.mark.parametrize("core_cls", [DiscreteSidewalkEnv, ContinuousSidewalkEnv])
+def test_views_answer_what_torchrl_multiagent_trainers_ask_of_a_vmas_env(core_cls):
+    from sidewalk.views import SelfPlayView
+
+    core = core_cls(2, seed=0, max_steps=37)
+    view = SelfPlayView(core)
+    assert core.max_steps == view.max_steps == EgoView(core_cls(2, seed=0, max_steps=37)).max_steps == 37
+    assert view.group_map == core.group_map == {"agents": ["agent_0", "agent_1"]}
+    view.reset()
+    picture = view.render(1, mode="rgb_array")
+    assert picture.dtype.name == "uint8" and picture.ndim == 3
+    assert (picture == view.render(1)).all()
+    with pytest.raises(ValueError, match=r"mode='human' is not valid; valid: 'rgb_array'"):
+        view.render(mode="human")

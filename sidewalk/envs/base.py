@@ -47,6 +47,8 @@ from sidewalk._torchrl import new_tensordict_unchecked
 from sidewalk.envs.rewards import RewardParams, compose_reward
 
 AGENT_GROUP = "agents"
+# What ``render`` can return: an RGB array (no window: the worlds are drawn off-screen).
+RENDER_MODES = ("rgb_array",)
 INFO_KEYS = ("reached_goal", "collided_agent", "collided_wall", "timed_out")
 # What the per-step safety cost ("agents", "cost") counts (env.cost): collisions only, or near misses too.
 COSTS = ("collision", "near_miss")
@@ -440,6 +442,22 @@ class SidewalkEnvBase(EnvBase):
     def _room(p: Any, given: tuple[Any, Any], default: tuple[Any, Any]) -> tuple[Any, Any]:
         """The room's two sides for params ``p``: ``given`` where not None, else the layout's choice."""
         raise NotImplementedError
+
+    @property
+    def max_steps(self) -> int:
+        """The time limit: a world not terminated after this many steps is truncated."""
+        return self.params.max_steps
+
+    @property
+    def agent_names(self) -> list[str]:
+        """The agents' names in agent order, ``agent_0``, ``agent_1``, ... (the PettingZoo API's too)."""
+        return [f"agent_{index}" for index in range(self.n_agents)]
+
+    @property
+    def group_map(self) -> dict[str, list[str]]:
+        """TorchRL's multi-agent group map, as its VMAS and PettingZoo wrappers give it: every agent in the
+        ``"agents"`` group."""
+        return {AGENT_GROUP: self.agent_names}
 
     @property
     def generator(self) -> torch.Generator:

@@ -12,7 +12,7 @@ from torchrl.data.tensor_specs import BoundedDiscrete
 
 from sidewalk._checks import check_choice, check_int, check_range
 from sidewalk._torchrl import set_uniform_box
-from sidewalk.envs.base import COSTS, SidewalkEnvBase, new_output
+from sidewalk.envs.base import COSTS, RENDER_MODES, SidewalkEnvBase, new_output
 from sidewalk.envs.layouts import GridLayout, RandomGridLayout, grid_layout, grid_room
 from sidewalk.envs.rewards import RewardParams
 from sidewalk.envs.shield import grid_shield
@@ -356,8 +356,10 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         torch.index_select(per_agent, 1, self._ego_order.view(-1), out=out)
         return out.view(row.shape[0], self.n_agents, width * self.n_agents)
 
-    def render(self, env_index: int = 0, pixels_per_cell: int = 24) -> np.ndarray:
-        """The world ``env_index`` as an RGB uint8 array (rows·px, cols·px, 3): agents as discs, goals as squares."""
+    def render(self, env_index: int = 0, pixels_per_cell: int = 24, *, mode: str = "rgb_array") -> np.ndarray:
+        """The world ``env_index`` as an RGB uint8 array (rows·px, cols·px, 3): agents as discs, goals as squares.
+        ``mode``: ``"rgb_array"`` only (VMAS's keyword, which trainers such as BenchMARL pass)."""
+        check_choice("mode", mode, RENDER_MODES)
         check_int("env_index", env_index, 0, self.num_envs - 1)
         from sidewalk.envs.render import draw_grid
 

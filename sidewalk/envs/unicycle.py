@@ -11,7 +11,7 @@ import torch
 from torchrl.data import Bounded, Unbounded
 
 from sidewalk._checks import check_choice, check_int, check_range
-from sidewalk.envs.base import COSTS, SidewalkEnvBase, new_output
+from sidewalk.envs.base import COSTS, RENDER_MODES, SidewalkEnvBase, new_output
 from sidewalk.envs.geodesic import GeodesicDistance, blocked
 from sidewalk.envs.layouts import PlaneLayout, RandomPlaneLayout, plane_layout, plane_room
 from sidewalk.envs.rewards import RewardParams
@@ -307,8 +307,10 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
             observation[..., :NOISY_FIELDS].add_(noise.view(len(per_agent), n * n, NOISY_FIELDS) * shown)
         return {"observation": observation.view(len(per_agent), n, n * width), "state": state, "goal": goal}
 
-    def render(self, env_index: int = 0, pixels_per_m: int = 60) -> np.ndarray:
-        """The world ``env_index`` as an RGB uint8 array: agents as discs with a heading tick, goals as stars."""
+    def render(self, env_index: int = 0, pixels_per_m: int = 60, *, mode: str = "rgb_array") -> np.ndarray:
+        """The world ``env_index`` as an RGB uint8 array: agents as discs with a heading tick, goals as stars.
+        ``mode``: ``"rgb_array"`` only (VMAS's keyword, which trainers such as BenchMARL pass)."""
+        check_choice("mode", mode, RENDER_MODES)
         check_int("env_index", env_index, 0, self.num_envs - 1)
         from sidewalk.envs.render import draw_plane
 

@@ -52,7 +52,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, TensorSpec
 
 from sidewalk._checks import check_choice
-from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, SidewalkEnvBase
+from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, RENDER_MODES, SidewalkEnvBase
 from sidewalk.envs.grid import DiscreteSidewalkEnv
 from sidewalk.envs.unicycle import OBSERVATION_FIELDS, ContinuousSidewalkEnv
 from sidewalk.registry import OPPONENTS
@@ -64,7 +64,6 @@ DOMAINS: dict[str, type[SidewalkEnvBase]] = {
 }
 ENV_IDS = {"discrete": "sidewalk/Discrete-v0", "continuous": "sidewalk/Continuous-v0"}
 CENTRALIZED = "centralized"
-RENDER_MODES = ["rgb_array"]
 RENDER_FPS = 10
 # Float32 rounding of positions and headings may land a hair past the nominal bounds.
 _BOUND_SLACK = 1e-3
@@ -262,7 +261,7 @@ class SidewalkGymEnv(gymnasium.Env):
     The TorchRL view behind it is ``self.view``.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": RENDER_MODES, "render_fps": RENDER_FPS}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": list(RENDER_MODES), "render_fps": RENDER_FPS}
 
     def __init__(
         self,
@@ -343,7 +342,7 @@ class SidewalkVectorEnv(VectorEnv):
     """
 
     metadata: ClassVar[dict[str, Any]] = {
-        "render_modes": RENDER_MODES,
+        "render_modes": list(RENDER_MODES),
         "render_fps": RENDER_FPS,
         "autoreset_mode": AutoresetMode.NEXT_STEP,
     }

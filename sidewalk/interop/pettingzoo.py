@@ -37,8 +37,8 @@ from gymnasium import spaces
 from tensordict import TensorDict, TensorDictBase
 
 from sidewalk._checks import check_choice
-from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS
-from sidewalk.interop.gymnasium import DOMAINS, RENDER_FPS, RENDER_MODES, agent_spaces, checked_action
+from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, RENDER_MODES
+from sidewalk.interop.gymnasium import DOMAINS, RENDER_FPS, agent_spaces, checked_action
 
 
 class SidewalkParallelEnv(ParallelEnv):
@@ -50,7 +50,7 @@ class SidewalkParallelEnv(ParallelEnv):
 
     metadata: ClassVar[dict[str, Any]] = {
         "name": "sidewalk_v0",
-        "render_modes": RENDER_MODES,
+        "render_modes": list(RENDER_MODES),
         "render_fps": RENDER_FPS,
         "is_parallelizable": True,
     }
@@ -68,7 +68,7 @@ class SidewalkParallelEnv(ParallelEnv):
         self.render_mode = render_mode
         self.domain = domain
         self.core = DOMAINS[domain](num_envs=1, device=device, **env_kwargs)
-        self.possible_agents = [f"agent_{index}" for index in range(self.core.n_agents)]
+        self.possible_agents = self.core.agent_names
         self.agents: list[str] = []
         self._index = {name: index for index, name in enumerate(self.possible_agents)}
         # Separate space objects per agent, so that seeding one agent's space leaves the others' alone.

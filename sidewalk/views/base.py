@@ -174,5 +174,10 @@ class _SidewalkView(EnvBase):
         )
 
     def render(self, env_index: int = 0, **kwargs: Any):
-        """The core's RGB rendering of world ``env_index`` (see the core env's ``render``)."""
+        """The core's RGB rendering of world ``env_index`` (see the core env's ``render``; ``mode="rgb_array"``)."""
         return self.core.render(env_index, **kwargs)
+
+    @property
+    def max_steps(self) -> int:
+        """The core's time limit (``SidewalkEnvBase.max_steps``)."""
+        return self.core.max_steps

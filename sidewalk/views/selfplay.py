@@ -52,6 +52,11 @@ class SelfPlayView(_SidewalkView):
         self._view_action_key = (AGENT_GROUP, "action")
         self._make_spec()
 
+    @property
+    def group_map(self) -> dict[str, list[str]]:
+        """TorchRL's multi-agent group map: every agent in the ``"agents"`` group (the core's)."""
+        return self.core.group_map
+
     def _make_spec(self) -> None:
         core_agents = self.core.observation_spec[AGENT_GROUP]
         agents_shape = self._agents_shape
