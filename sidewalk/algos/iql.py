@@ -231,12 +231,15 @@ class IQL(MultiAgentAlgorithm):
         step = self._advantage_learning_step if cfg.advantage_learning else None
         return {**logs, **replay_updates(self, replay_buffer, step)}
 
-    def action_gaps(self, sample: TensorDictBase) -> torch.Tensor:
-        """(batch, N): each agent's taken action's gap to its best one under the target network."""
+    def target_q_values(self, sample: TensorDictBase) -> torch.Tensor:
+        """(batch, N, actions): every agent's Q-values under the target network, without gradient."""
         network = getattr(self.loss, self.AGENT_NETWORK)
         with torch.no_grad(), getattr(self.loss, f"target_{self.AGENT_NETWORK}_params").to_module(network):
-            q = self.q_network(sample[self.OBSERVATION_KEY])
-        return action_gap(q, sample[self.ACTION_KEY])
+            return self.q_network(sample[self.OBSERVATION_KEY])
+
+    def action_gaps(self, sample: TensorDictBase) -> torch.Tensor:
+        """(batch, N): each agent's taken action's gap to its best one under the target network."""
+        return action_gap(self.target_q_values(sample), sample[self.ACTION_KEY])
 
     def reward_gaps(self, sample: TensorDictBase) -> tuple[NestedKey, torch.Tensor]:
         """The reward the loss trains on and the action gaps in its shape: each agent's own."""

@@ -85,15 +85,11 @@ class VDN(IQL):
         """The team reward and Q_tot's gap to the best joint action under the target networks: the target mixer at
         every agent's best Q-value less at the taken ones (a monotone mixer's best joint action is every agent's
         best; for VDN's sum it is the in-play agents' gaps summed)."""
-        network, mixer = getattr(self.loss, self.AGENT_NETWORK), self.loss.mixer_network
-        with (
-            torch.no_grad(),
-            getattr(self.loss, f"target_{self.AGENT_NETWORK}_params").to_module(network),
-            self.loss.target_mixer_network_params.to_module(mixer),
-        ):
-            q = self.q_network(sample[self.OBSERVATION_KEY])
-            chosen = q.gather(-1, sample[self.ACTION_KEY].unsqueeze(-1))
-            rest = [sample.get(key) for key in mixer.in_keys[1:]]  # the mask, and QMIX's state
+        q = self.target_q_values(sample)
+        chosen = q.gather(-1, sample[self.ACTION_KEY].unsqueeze(-1))
+        mixer = self.loss.mixer_network
+        rest = [sample.get(key) for key in mixer.in_keys[1:]]  # the mask, and QMIX's state
+        with torch.no_grad(), self.loss.target_mixer_network_params.to_module(mixer):
             gap = mixer.module(q.amax(-1, keepdim=True), *rest) - mixer.module(chosen, *rest)
         return ("next", "reward"), gap
 
