@@ -62,6 +62,7 @@ SECTIONS = {
     "multiagent": "sidewalk.bench.multiagent",
     "groups": "sidewalk.bench.groups",
     "image_ppo": "sidewalk.bench.image_ppo",
+    "benchmarl": "sidewalk.bench.benchmarl_tasks",
 }
 DEFAULT_SECTIONS = ("env", "planning", "views")
 

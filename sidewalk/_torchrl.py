@@ -108,3 +108,34 @@ def foreach_lerp_(targets: list, sources: list, weight: float) -> None:
 
     _require(torch, ("_foreach_lerp_",), "take a Polyak step over all of a network's tensors in one call")
     torch._foreach_lerp_(targets, sources, weight)
+
+
+# BenchMARL's modules that build TorchRL's QValueModule with a group's action spec (BenchMARL 1.5).
+BENCHMARL_Q_VALUE_MODULES = ("benchmarl.algorithms.iql", "benchmarl.algorithms.vdn", "benchmarl.algorithms.qmix")
+
+
+def adapt_benchmarl() -> None:
+    """Make BenchMARL 1.5 (written for TorchRL 0.10-0.11) import and train on TorchRL 0.14; idempotent. Called only
+    by ``sidewalk.interop.benchmarl``, which calls it before it imports BenchMARL. Two differences:
+
+    - ``torchrl.collectors.SyncDataCollector``, which BenchMARL imports, is named ``Collector`` since TorchRL 0.14
+      (the arguments BenchMARL passes are the same): the old name is set to the new class.
+    - TorchRL 0.14's ``QValueModule`` checks its action's shape against ``spec`` taken as one sample's; BenchMARL's
+      IQL, VDN and QMIX give it the agents group's spec (agents first), so every multi-agent action fails the check.
+      Those three modules get ``QValueModule`` with ``strict_shape=False``: TorchRL 0.11's behaviour, no check.
+
+    Why here: both write attributes of other packages' modules (TorchRL's, BenchMARL's)."""
+    import functools
+    import importlib
+
+    from torchrl import collectors
+    from torchrl.modules import QValueModule
+
+    _require(collectors, ("Collector",), "alias the collector BenchMARL imports under its old name")
+    if not hasattr(collectors, "SyncDataCollector"):
+        collectors.SyncDataCollector = collectors.Collector
+    for name in BENCHMARL_Q_VALUE_MODULES:
+        module = importlib.import_module(name)
+        _require(module, ("QValueModule",), "build BenchMARL's Q-value modules without TorchRL 0.14's shape check")
+        if module.QValueModule is QValueModule:
+            module.QValueModule = functools.partial(QValueModule, strict_shape=False)

@@ -36,14 +36,14 @@ def play(view: SelfPlayView, actions: list[list]) -> TensorDict:
 
 def crash_episode(observation: str = "image") -> TensorDict:
     """Agent 1 walks UP off the grid at step 4 (index 3); agent 0 walks RIGHT and arrives alone at step 14."""
-    view = SelfPlayView(DiscreteSidewalkEnv(1, seed=0, observation=observation))
+    view = SelfPlayView(DiscreteSidewalkEnv(1, seed=0, observation=observation), legacy_keys=False)
     return play(view, [[RIGHT, UP]] * 14)
 
 
 def later_arrival_episode() -> TensorDict:
     """Agent 1 steps UP out of the way and waits between rows 2 and 1; agent 0 arrives at step 14 (index 13); then
     agent 1 walks LEFT along row 1 and DOWN twice onto its goal, arriving at step 30 (index 29)."""
-    view = SelfPlayView(DiscreteSidewalkEnv(1, seed=0))
+    view = SelfPlayView(DiscreteSidewalkEnv(1, seed=0), legacy_keys=False)
     wait = [[RIGHT, UP]] + [[RIGHT, UP if step % 2 else DOWN] for step in range(1, 14)]
     return play(view, wait + [[RIGHT, LEFT]] * 14 + [[RIGHT, DOWN]] * 2)
 
@@ -58,12 +58,12 @@ def test_a_crash_terminates_the_crasher_at_its_crash_step_and_masks_it_after_whi
     terminated = agent(td, "terminated", 1)
     assert not terminated[:crash].any() and terminated[crash:].all()
     assert agent(td, "reward", 1)[crash] < -0.5 and (agent(td, "reward", 1)[crash + 1 :] == 0).all()
-    mask = td.get(("agents", "mask"))[0, :, 1, 0]  # the state each step is taken from
+    mask = td.get(("agents", "info", "mask"))[0, :, 1, 0]  # the state each step is taken from
     assert mask[: crash + 1].all() and not mask[crash + 1 :].any()
     # the partner goes on: not done until it arrives, and the world ends with it
     assert not agent(td, "done", 0)[:13].any() and agent(td, "terminated", 0)[13]
     assert not td.get(("next", "done"))[0, :13].any() and td.get(("next", "terminated"))[0, 13]
-    assert td.get(("agents", "mask"))[0, :, 0, 0].all()
+    assert td.get(("agents", "info", "mask"))[0, :, 0, 0].all()
 
 
 def test_the_explicit_reward_of_a_later_arrival_reaches_the_agent_that_arrived_first():
@@ -72,7 +72,7 @@ def test_the_explicit_reward_of_a_later_arrival_reaches_the_agent_that_arrived_f
     info = td.get(("next", "world", "info", "reached_goal"))[0, :, :, 0]
     assert info[first, 0] and not info[first, 1] and info[later, 1]
     # agent 0's value stays open from its arrival to the world's end: not done, in play, paid 0 while it waits
-    assert not agent(td, "done", 0)[:later].any() and td.get(("agents", "mask"))[0, : later + 1, 0, 0].all()
+    assert not agent(td, "done", 0)[:later].any() and td.get(("agents", "info", "mask"))[0, : later + 1, 0, 0].all()
     assert (agent(td, "reward", 0)[first + 1 : later] == 0).all()
     # the cooperative term of eq. 2 for agent 1's arrival (alpha * c_goal) reaches it at agent 1's arrival step
     assert agent(td, "reward", 0)[later] == pytest.approx(0.5)
@@ -127,7 +127,7 @@ def test_a_removed_agent_does_not_appear_in_the_others_grid_observations(observa
     crash = 3
     seen = td.get(("next", "agents", "observation"))[0, :, 0]  # agent 0's own view
     if observation == "image":
-        alone = SelfPlayView(DiscreteSidewalkEnv(1, seed=0)).core._agent_grey[0, 1]  # agent 1's grey in 0's image
+        alone = SelfPlayView(DiscreteSidewalkEnv(1, seed=0), legacy_keys=False).core._agent_grey[0, 1]  # agent 1's grey in 0's image
         assert (seen[crash - 1] == alone).any() and not (seen[crash:] == alone).any()
     else:
         other = seen.unflatten(-1, (2, len(VECTOR_FIELDS)))[:, 1]
@@ -137,7 +137,7 @@ def test_a_removed_agent_does_not_appear_in_the_others_grid_observations(observa
 
 
 def test_continuous_observations_flag_who_is_active_and_present_and_zero_a_removed_agent():
-    view = SelfPlayView(ContinuousSidewalkEnv(64, seed=0))
+    view = SelfPlayView(ContinuousSidewalkEnv(64, seed=0), legacy_keys=False)
     torch.manual_seed(0)
     rollout = view.rollout(60, break_when_any_done=False)
     observation = rollout.get(("next", "agents", "observation"))

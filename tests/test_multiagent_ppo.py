@@ -38,7 +38,7 @@ def view(domain: str, num_envs: int = 4, seed: int = 0) -> TransformedEnv:
         core = ContinuousSidewalkEnv(num_envs, seed=seed)
     else:
         core = DiscreteSidewalkEnv(num_envs, seed=seed, params=DiscreteParams(observation=domain))
-    return TransformedEnv(SelfPlayView(core), RewardSum())
+    return TransformedEnv(SelfPlayView(core, legacy_keys=False), RewardSum())
 
 
 def learner(name: str, domain: str, num_envs: int = 4, **config) -> tuple[IPPO, TransformedEnv]:
@@ -101,7 +101,7 @@ def test_value_targets_are_each_agents_own_discounted_return(name):
 
 
 def test_ippo_learns_nothing_from_an_agents_steps_after_its_own_end():
-    # Steps an agent takes after its own end (("agents", "mask") false) are out of every loss and statistic: making
+    # Steps an agent takes after its own end (("agents", "info", "mask") false) are out of every loss and statistic: making
     # up their rewards and observations leaves the update exactly as it was. (MAPPO's critic reads every agent's
     # observation for the others' values, so this holds for IPPO's own-observation critic.)
     algo, env = learner("ippo", "continuous", num_envs=16, frames_per_batch=1024, epochs=2, minibatch_size=256)
@@ -109,7 +109,7 @@ def test_ippo_learns_nothing_from_an_agents_steps_after_its_own_end():
                           auto_register_policy_transforms=False)
     batch = next(iter(collector))
     collector.shutdown()
-    out_of_play = ~batch.get(("agents", "mask"))
+    out_of_play = ~batch.get(("agents", "info", "mask"))
     assert out_of_play.any() and not out_of_play.all()
     made_up = batch.clone()
     noise = torch.randn_like(made_up.get(OBS)) * 10

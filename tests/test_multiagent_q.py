@@ -21,7 +21,7 @@ from sidewalk.views import SelfPlayView
 ROOT = Path(__file__).resolve().parents[1]
 LEARNERS = ("iql", "vdn", "qmix")
 OBS, ACTION, REWARD = ("agents", "observation"), ("agents", "action"), ("agents", "reward")
-MASK = ("agents", "mask")
+MASK = ("agents", "info", "mask")
 GAMMA = 0.9
 
 
@@ -35,7 +35,7 @@ def one_thread():
 
 def make_learner(name: str, num_envs: int = 4, **overrides):
     torch.manual_seed(0)
-    env = TransformedEnv(SelfPlayView(DiscreteSidewalkEnv(num_envs, seed=0)), RewardSum())
+    env = TransformedEnv(SelfPlayView(DiscreteSidewalkEnv(num_envs, seed=0), legacy_keys=False), RewardSum())
     cls = ALGORITHMS[name]
     return cls(cls.Config(**overrides), env), env
 
@@ -83,9 +83,9 @@ def test_qmix_is_monotone_in_each_agents_q():
 
 
 def test_qmix_state_is_the_scaled_true_world():
-    algo, env = make_learner("qmix")
+    _, env = make_learner("qmix")
     td = env.reset()
-    state = algo.global_state(td.get("world"))  # (B, 5·N)
+    state = td.get("state")  # the view's root state, (B, 5·N): the mixer's input
     # The sidewalk: agent 0 at (3, 0) with its goal at (3, 14), agent 1 the other way; a 7 × 15 grid.
     expected = torch.tensor([3 / 6, 0.0, 3 / 6, 1.0, 1.0, 3 / 6, 1.0, 3 / 6, 0.0, 1.0])
     torch.testing.assert_close(state, expected.expand_as(state))
@@ -140,7 +140,7 @@ def expected_targets(name: str, algo, td: TensorDict):
     if name == "vdn":
         return chosen.sum(-2), reward + GAMMA * (~terminated) * next_chosen.sum(-2)
     mixer = algo.mixer.module.mixer
-    state, next_state = algo.global_state(td.get("world")), algo.global_state(td.get(("next", "world")))
+    state, next_state = td.get("state"), td.get(("next", "state"))
     with loss.target_mixer_network_params.to_module(algo.mixer):
         next_team = mixer(next_chosen, next_state)
     return mixer(chosen, state), reward + GAMMA * (~terminated) * next_team
@@ -220,7 +220,7 @@ def test_qmix_advantage_learning_pays_the_mixed_gap_to_the_greedy_joint_action()
 
 @pytest.mark.parametrize("name", LEARNERS)
 def test_share_params_false_gives_agents_their_own_q(name):
-    observation = SelfPlayView(DiscreteSidewalkEnv(1, seed=0)).reset().get(OBS)[:, :1]  # agent 0's view
+    observation = SelfPlayView(DiscreteSidewalkEnv(1, seed=0), legacy_keys=False).reset().get(OBS)[:, :1]  # agent 0's view
     same_view = observation.expand(1, 2, *observation.shape[2:])  # both agents see it
     for share in (True, False):
         algo, _ = make_learner(name, share_params=share)

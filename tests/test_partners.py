@@ -71,14 +71,15 @@ def runs(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.mark.parametrize("core_cls", [DiscreteSidewalkEnv, ContinuousSidewalkEnv])
 def test_self_play_view_specs_and_each_agents_own_life_cycle(core_cls):
-    view = SelfPlayView(core_cls(16, seed=3))
+    view = SelfPlayView(core_cls(16, seed=3), legacy_keys=False)
     check_env_specs(view)
     rollout = view.rollout(200, break_when_any_done=False)
     nxt = rollout.get("next")
     world = {key: nxt.get(key).unsqueeze(-2) for key in ("done", "terminated", "truncated")}  # (B, T, 1, 1)
     info = nxt.get(("world", "info"))
     crashed = info.get("collided_agent") | info.get("collided_wall")  # (B, T, N, 1)
-    agents = {key: nxt.get(("agents", key)) for key in ("done", "terminated", "truncated", "mask")}
+    agents = {key: nxt.get(("agents", key)) for key in ("done", "terminated", "truncated")}
+    agents["mask"] = nxt.get(("agents", "info", "mask"))
     assert torch.equal(agents["terminated"], crashed | world["terminated"].expand_as(crashed))
     assert torch.equal(agents["truncated"], world["truncated"].expand_as(crashed) & ~crashed)
     assert torch.equal(agents["done"], agents["terminated"] | agents["truncated"])
@@ -91,7 +92,7 @@ def test_self_play_view_specs_and_each_agents_own_life_cycle(core_cls):
 
 
 def test_self_play_evaluation_reports_team_metrics_without_an_ego():
-    view = SelfPlayView(DiscreteSidewalkEnv(32, seed=0))
+    view = SelfPlayView(DiscreteSidewalkEnv(32, seed=0), legacy_keys=False)
     metrics = evaluate(view, None, seed=1)
     assert "team/success_rate" in metrics and "agent1/success_rate" in metrics
     assert not any(key.startswith(("ego/", "other/")) for key in metrics)

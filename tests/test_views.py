@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -399,7 +401,7 @@ def test_views_answer_what_torchrl_multiagent_trainers_ask_of_a_vmas_env(core_cl
     from sidewalk.views import SelfPlayView
 
     core = core_cls(2, seed=0, max_steps=37)
-    view = SelfPlayView(core)
+    view = SelfPlayView(core, legacy_keys=False)
     assert core.max_steps == view.max_steps == EgoView(core_cls(2, seed=0, max_steps=37)).max_steps == 37
     assert view.group_map == core.group_map == {"agents": ["agent_0", "agent_1"]}
     view.reset()
@@ -408,3 +410,74 @@ def test_views_answer_what_torchrl_multiagent_trainers_ask_of_a_vmas_env(core_cl
     assert (picture == view.render(1)).all()
     with pytest.raises(ValueError, match=r"mode='human' is not valid; valid: 'rgb_array'"):
         view.render(mode="human")
+
+
+@pytest.mark.parametrize("domain", DOMAINS)
+def test_self_play_keys_read_as_vmas_wrapper_keys(domain):
+    from sidewalk.views import SelfPlayView
+
+    view = SelfPlayView(core(domain, num_envs=3, layout="teams", n_agents=4), legacy_keys=False)
+    check_env_specs(view)
+    agents = view.full_observation_spec[AGENT_GROUP]
+    # Everything under the group but "info" is the input: a VMAS-style trainer (BenchMARL) drops "info" and is right.
+    assert set(agents.keys()) == {"observation", "info"}
+    assert set(agents["info"].keys()) == {*INFO_KEYS, "cost", "mask"}
+    rollout = view.rollout(300, break_when_any_done=False)
+    nxt = rollout.get("next")
+    for key in INFO_KEYS:  # the same sticky flags the "world" group reports for evaluation
+        assert torch.equal(nxt.get((AGENT_GROUP, "info", key)), nxt.get(("world", "info", key)))
+    assert torch.equal(nxt.get((AGENT_GROUP, "info", "mask")), ~nxt.get((AGENT_GROUP, "done")))
+    assert torch.equal(nxt.get((AGENT_GROUP, "info", "cost")), nxt.get(("world", "cost")))
+    # The root state is every agent's true state, goal and presence: 5 (grid) / 8 (continuous) numbers an agent.
+    state, world = nxt.get("state"), nxt.get("world")
+    width = {"discrete": 5, "continuous": 8}[domain]
+    assert state.shape == (*nxt.batch_size, 4 * width)
+    per_agent = state.unflatten(-1, (4, width))
+    assert torch.equal(per_agent[..., -1:], world.get("present").float())
+    if domain == "continuous":
+        p = view.core.params
+        x, _, speed, heading = world.get("state").unbind(-1)
+        torch.testing.assert_close(per_agent[..., 0], x / p.length_m)
+        torch.testing.assert_close(per_agent[..., 2], speed / p.max_speed_mps)
+        torch.testing.assert_close(per_agent[..., 3:5], torch.stack([heading.cos(), heading.sin()], -1))
+    else:
+        rows, cols = view.core.rows, view.core.cols
+        torch.testing.assert_close(per_agent[..., 2:4], world.get("goal").float() / torch.tensor([rows - 1, cols - 1]))
+    assert 0 <= float(per_agent[..., :2].min()) and float(per_agent[..., :2].max()) <= 1  # positions in the room
+
+
+def test_a_crashed_agent_past_its_end_is_paid_nothing_and_stays_terminated():
+    """What a trainer that ignores the mask sees after an agent's crash: reward 0 and terminated, so its value
+    target there is 0 and its actions there change nothing."""
+    from sidewalk.views import SelfPlayView
+
+    view = SelfPlayView(DiscreteSidewalkEnv(1, seed=0), legacy_keys=False)
+    td = view.reset()
+    steps = []
+    for _ in range(6):  # agent 0 goes up until it hits the wall, agent 1 keeps walking
+        td.set((AGENT_GROUP, "action"), torch.tensor([[UP, LEFT]]))
+        td = view.step(td)
+        steps.append(td.get("next").clone())
+        td = td.get("next")
+    crashed = [bool(step.get((AGENT_GROUP, "info", "collided_wall"))[0, 0]) for step in steps]
+    first = crashed.index(True)
+    for step in steps[first + 1:]:
+        assert float(step.get((AGENT_GROUP, "reward"))[0, 0]) == 0.0
+        assert bool(step.get((AGENT_GROUP, "terminated"))[0, 0]) and not bool(step.get((AGENT_GROUP, "info", "mask"))[0, 0])
+    assert not any(bool(step.get("done")) for step in steps)  # the world goes on: agent 1 still walks
+
+
+def test_the_earlier_self_play_keys_still_work_and_warn_once():
+    from sidewalk.views import SelfPlayView
+    from sidewalk.views.selfplay import _warn_legacy_keys
+
+    _warn_legacy_keys.cache_clear()
+    with pytest.warns(FutureWarning, match=r"\('agents', 'info', 'mask'\).*legacy_keys=False"):
+        view = SelfPlayView(DiscreteSidewalkEnv(2, seed=0))
+    check_env_specs(view)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        SelfPlayView(DiscreteSidewalkEnv(2, seed=0))  # once per process
+    td = view.rollout(5)
+    for key in ("cost", "mask"):
+        assert torch.equal(td.get(("next", AGENT_GROUP, key)), td.get(("next", AGENT_GROUP, "info", key)))

@@ -158,7 +158,7 @@ class MultiAgentConfig(AlgoConfig):
 class MultiAgentAlgorithm(Algorithm):
     """A learner of every agent at once, on the self-play view (``sidewalk.views.SelfPlayView``, ``opponent=self``).
 
-    Keys are TorchRL's multi-agent ones: ``("agents", "observation")`` ``(N, *obs)``, ``("agents", "mask")``
+    Keys are TorchRL's multi-agent ones: ``("agents", "observation")`` ``(N, *obs)``, ``("agents", "info", "mask")``
     (the agent's value is still open: the step carries learning signal) and ``("agents", "action")`` in,
     ``("agents", "reward")`` and ``("agents", "done"|"terminated")`` (each agent's own end) out. The unbatched specs
     below keep the agent dimension first: ``observation_spec.shape == (N, *obs)``, ``action_spec.shape == (N,)``
@@ -171,7 +171,7 @@ class MultiAgentAlgorithm(Algorithm):
     REWARD_KEY: ClassVar[tuple[str, str]] = (AGENT_GROUP, "reward")
     DONE_KEY: ClassVar[tuple[str, str]] = (AGENT_GROUP, "done")
     TERMINATED_KEY: ClassVar[tuple[str, str]] = (AGENT_GROUP, "terminated")
-    MASK_KEY: ClassVar[tuple[str, str]] = (AGENT_GROUP, "mask")
+    MASK_KEY: ClassVar[tuple[str, str, str]] = (AGENT_GROUP, "info", "mask")
 
     def __init__(self, config: AlgoConfig, env: EnvBase, device: torch.device | str = "cpu") -> None:
         if self.ACTION_KEY not in env.full_action_spec.keys(True, True):

@@ -7,7 +7,7 @@ for vectors one ``RunningNorm`` over the per-agent observation, shared by both n
 ``share_params`` (default) gives every agent the same weights -- each observation is ego-centric, so one network can
 play any agent -- or one set per agent. ``ClipPPOLoss`` and ``GAE`` run over the agent-batched keys
 ``("agents", ...)``: each agent's advantage comes from its own reward and value and its own end (the view's
-``("agents", "terminated"|"done")``), and its steps after that end (``("agents", "mask")`` false) are left out of
+``("agents", "terminated"|"done")``), and its steps after that end (``("agents", "info", "mask")`` false) are left out of
 every loss (``loss_mask_key``), of the advantages' standardisation and of the observation statistics. The rest is
 our single-agent PPO (``sidewalk.algos.ppo``): a ``TanhNormal`` with a bounded mean (``mean_bound``) and a
 state-independent log-std starting at 0 (continuous) or a ``Categorical`` (grid), an output layer at 1 % of its

@@ -194,7 +194,7 @@ class IQL(MultiAgentAlgorithm):
 
     def _make_loss(self, env: EnvBase, spec) -> LossModule:
         """DQN's loss on every agent's own reward and end: a (batch, N) TD error, averaged over the agent-steps that
-        carry learning signal (``("agents", "mask")``): an agent's own end stops its target, and its later steps,
+        carry learning signal (``("agents", "info", "mask")``): an agent's own end stops its target, and its later steps,
         whose actions move nothing, are left out."""
         cfg: IQLConfig = self.config
         loss = DQNLoss(

@@ -76,7 +76,7 @@ def clipped_ppo_update(
     ratio's reference log-prob, then ``epochs`` passes of shuffled minibatches; returns the mean of each of
     ``log_keys`` the loss reports. Our PPO and the multi-agent IPPO/MAPPO share it, with their own keys.
 
-    With ``mask_key`` (the multi-agent ``("agents", "mask")``, bool (..., N, 1)), the advantages are standardised and
+    With ``mask_key`` (the multi-agent ``("agents", "info", "mask")``, bool (..., N, 1)), the advantages are standardised and
     the observation statistics gathered over the masked-in agent-steps only, and ``algo.loss`` is expected to read
     the same mask (``loss_mask_key``); without it the advantage estimator standardises (``average_gae``)."""
     cfg = algo.config

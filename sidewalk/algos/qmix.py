@@ -7,8 +7,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-import torch
-from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
 from torchrl.envs import EnvBase
@@ -17,9 +15,8 @@ from torchrl.modules import QMixer
 from sidewalk._checks import check_int
 from sidewalk.algos.iql import CHOSEN_ACTION_VALUE_KEY
 from sidewalk.algos.vdn import TEAM_VALUE_KEY, VDN, InPlayMixer, VDNConfig
-from sidewalk.views import WORLD
 
-STATE_KEY = "state"  # the mixer's global state (batch, 5·N), stored beside each transition
+STATE_KEY = "state"  # the self-play view's global state (batch, 5·N), stored beside each transition
 
 
 @dataclass
@@ -37,39 +34,23 @@ class QMIXConfig(VDNConfig):
 class QMIX(VDN):
     """Q_tot = mixer(Q_1(o_1, a_1), ..., Q_N(o_N, a_N); s), monotone in every Q_i, trained on VDN's team reward.
 
-    The global state ``s`` is the true world the ``"world"`` group reports, which no agent observes whole:
-    every agent's cell and goal, scaled to [0, 1] by the grid's extent, and its presence flag (5·N numbers, in
-    agent order). It is smaller and exact where the agents' images are large and ego-centric.
+    The global state ``s`` is the self-play view's root ``"state"`` (``SidewalkEnvBase.global_state``), the true
+    world, which no agent observes whole: every agent's cell and goal, scaled to [0, 1] by the grid's extent, and its
+    presence flag (5·N numbers, in agent order). It is smaller and exact where the agents' images are large and
+    ego-centric.
     """
 
     name = "qmix"
     domains = ("discrete",)
     Config = QMIXConfig
-    TRANSITION_KEYS: ClassVar[tuple[NestedKey, ...]] = VDN.TRANSITION_KEYS
+    TRANSITION_KEYS: ClassVar[tuple[NestedKey, ...]] = (*VDN.TRANSITION_KEYS, STATE_KEY, ("next", STATE_KEY))
 
     def _make_mixer(self, env: EnvBase) -> TensorDictModule:
-        space = env.full_observation_spec_unbatched[WORLD, "state"].space
-        self._state_low = space.low.to(self.device, torch.float32)
-        self._state_extent = (space.high - space.low).clamp(min=1).to(self.device, torch.float32)
         cfg: QMIXConfig = self.config
         mixer = QMixer(
-            state_shape=(5 * self.n_agents,), mixing_embed_dim=cfg.mixing_embed_dim, n_agents=self.n_agents,
-            device=self.device,
+            state_shape=env.full_observation_spec_unbatched[STATE_KEY].shape, mixing_embed_dim=cfg.mixing_embed_dim,
+            n_agents=self.n_agents, device=self.device,
         )
         return TensorDictModule(
             InPlayMixer(mixer), in_keys=[CHOSEN_ACTION_VALUE_KEY, self.MASK_KEY, STATE_KEY], out_keys=[TEAM_VALUE_KEY]
         )
-
-    def global_state(self, world: TensorDictBase) -> torch.Tensor:
-        """The mixer's state (..., 5·N) from a ``"world"`` group (..., N): (row, col, goal row, goal col,
-        present) of every agent, cells scaled to [0, 1]."""
-        cell = (world.get("state").to(torch.float32) - self._state_low) / self._state_extent
-        goal = (world.get("goal").to(torch.float32) - self._state_low) / self._state_extent
-        present = world.get("present").to(torch.float32)
-        return torch.cat([cell, goal, present], dim=-1).flatten(-2)
-
-    def transitions(self, batch: TensorDictBase) -> TensorDictBase:
-        kept = super().transitions(batch)
-        kept.set(STATE_KEY, self.global_state(batch.get(WORLD)).reshape(kept.shape[0], -1))
-        kept.set(("next", STATE_KEY), self.global_state(batch.get(("next", WORLD))).reshape(kept.shape[0], -1))
-        return kept

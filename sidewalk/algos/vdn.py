@@ -22,7 +22,7 @@ TEAM_VALUE_KEY = "chosen_action_value"  # the mixer's output, Q_tot (batch, 1)
 
 class InPlayMixer(torch.nn.Module):
     """A mixer of only the agents still in play: the chosen Q-values of agents whose own episode ended (the view's
-    ``("agents", "mask")`` false, in the state itself and in the next one for the target) enter as 0, so an agent
+    ``("agents", "info", "mask")`` false, in the state itself and in the next one for the target) enter as 0, so an agent
     that crashed adds nothing to Q_tot and its meaningless actions take no part in the team's greedy target."""
 
     def __init__(self, mixer: torch.nn.Module) -> None:

@@ -420,6 +420,7 @@ class SidewalkEnvBase(EnvBase):
 
     # ---- conveniences -------------------------------------------------------------------------------------------
 
+    STATE_WIDTH: ClassVar[int]  # numbers per agent in ``global_state``
     room_sides: tuple[str, str]  # the names of the room's two sides in ``Params``, in ``_room``'s order
 
     @classmethod
@@ -447,6 +448,22 @@ class SidewalkEnvBase(EnvBase):
     def max_steps(self) -> int:
         """The time limit: a world not terminated after this many steps is truncated."""
         return self.params.max_steps
+
+    def global_state(self, agents: TensorDictBase) -> torch.Tensor:
+        """The true world as one vector per world, (..., N·``STATE_WIDTH``) float32, from an agents group's
+        ``state``, ``goal`` and ``present`` (..., N, ·): every agent's fields scaled to about [0, 1] and its presence
+        flag, in agent order. No agent observes it whole: it is the input of a centralised critic or a mixer (the
+        self-play view's root ``"state"``, where TorchRL's PettingZoo wrapper puts a global state)."""
+        features = self._state_features(agents.get("state"), agents.get("goal"))
+        return torch.cat([features, agents.get("present").to(torch.float32)], dim=-1).flatten(-2)
+
+    def global_state_spec(self) -> Unbounded:
+        """The spec of ``global_state`` for the env's worlds, (B, N·``STATE_WIDTH``)."""
+        return Unbounded(shape=(*self.batch_size, self.n_agents * self.STATE_WIDTH), device=self.device)
+
+    def _state_features(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """``global_state``'s fields of each agent but its presence flag, (..., N, ``STATE_WIDTH`` - 1)."""
+        raise NotImplementedError
 
     @property
     def agent_names(self) -> list[str]:

@@ -124,6 +124,7 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
     shaping_weight_name = None  # two shaping terms, weighed in _advance: c_center and c_progress
 
     room_sides = ("width_cells", "length_cells")
+    STATE_WIDTH = 5  # cell row, col, goal row, col (scaled to [0, 1] by the grid's extent), present
 
     @staticmethod
     def _room(p: DiscreteParams, given: tuple[Any, Any], default: tuple[Any, Any]) -> tuple[int, int]:
@@ -311,6 +312,10 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
 
     def _near(self, gap_sq: torch.Tensor) -> torch.Tensor:
         return gap_sq <= self.params.near_miss_margin**2  # cells: at the margin counts (1: the next cell)
+
+    def _state_features(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        extent = torch.tensor([self.rows - 1, self.cols - 1], dtype=torch.float32, device=self.device).clamp(min=1)
+        return torch.cat([state.to(torch.float32) / extent, goal.to(torch.float32) / extent], dim=-1)
 
     def _observe(self, worlds: torch.Tensor | None) -> dict[str, torch.Tensor]:
         # Grid observations are a deterministic function of the state: a reset observes its worlds only.

@@ -99,6 +99,9 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
     shaping_weight_name = None  # two shaping terms, weighed in _advance: c_potential and c_progress
 
     room_sides = ("length_m", "width_m")
+    # x, y, speed, cos and sin of the heading, goal x, y (positions over the room's sides, speed over the top
+    # speed), present
+    STATE_WIDTH = 8
 
     @staticmethod
     def _room(p: ContinuousParams, given: tuple[Any, Any], default: tuple[Any, Any]) -> tuple[float, float]:
@@ -285,6 +288,14 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
         near_y = torch.maximum(torch.minimum(y.unsqueeze(-1), y_max), y_min)
         gap_sq = (x.unsqueeze(-1) - near_x).square() + (y.unsqueeze(-1) - near_y).square()
         return (gap_sq < self.params.agent_radius_m**2).any(-1)
+
+    def _state_features(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        p = self.params
+        x, y, speed, heading = state.unbind(-1)
+        return torch.stack(
+            [x / p.length_m, y / p.width_m, speed / p.max_speed_mps, heading.cos(), heading.sin(),
+             goal[..., 0] / p.length_m, goal[..., 1] / p.width_m], dim=-1,
+        )
 
     def _observe(self, worlds: torch.Tensor | None) -> dict[str, torch.Tensor]:
         fields = (self._x, self._y, self._speed, self._heading, self._goal_x, self._goal_y, self._active, self._present)

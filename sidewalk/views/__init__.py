@@ -6,8 +6,9 @@ Three views of one batched core env (``DiscreteSidewalkEnv`` or ``ContinuousSide
   flat single-agent ones, so stock single-agent TorchRL losses (``DQNLoss``, ``ClipPPOLoss``) work unchanged.
 - ``CentralizedView(env)``: the learner plays every agent through one joint action and receives the team reward.
 - ``SelfPlayView(env)``: every agent is the learner (``opponent=self``): TorchRL's multi-agent keys
-  ``("agents", ...)``, each agent with its own life cycle and a mask of the steps that carry learning signal (see
-  the class), for the multi-agent learners (IPPO, MAPPO, IQL, VDN, QMIX);
+  ``("agents", ...)`` as its VMAS wrapper gives them (the observation, and under ``("agents", "info")`` the outcome
+  flags, cost and the mask of the steps that carry learning signal), a root ``state`` for centralised critics, each
+  agent with its own life cycle (see the class), for the multi-agent learners (IPPO, MAPPO, IQL, VDN, QMIX);
 - the all-agents view is the multi-agent core env itself (``make_view("all", env)`` returns it).
 
 Every view takes ``shield=True``: before the core steps, the safety shield (the core's ``shield_action``, a one-step
@@ -58,8 +59,8 @@ def make_view(
     **kwargs: Any,
 ) -> EnvBase:
     """The view ``kind`` of ``env``: ``"ego"`` (``EgoView``; ``opponent`` defaults to ``"random"``, ``kwargs`` go
-    to ``EgoView``), ``"centralized"`` (``CentralizedView``), ``"self"`` (``SelfPlayView``) or ``"all"`` (the
-    multi-agent core env itself).
+    to ``EgoView``), ``"centralized"`` (``CentralizedView``), ``"self"`` (``SelfPlayView``; ``kwargs`` go to it:
+    ``other_play``, ``legacy_keys``) or ``"all"`` (the multi-agent core env itself).
 
     ``opponent`` and ``ego`` (default 0) apply only to ``"ego"``; giving either to another view is an error, as is
     an opponent that does not play the env's domain. ``shield=True`` shields the learner's actions (every view but
@@ -83,12 +84,12 @@ def make_view(
         raise ValueError(
             f"the {kind!r} view has no ego agent (the learner plays every agent); got ego={ego!r}"
         )
+    if kind == "self":
+        return SelfPlayView(env, shield=shield, **kwargs)
     if kwargs:
         raise TypeError(f"unexpected argument(s) {', '.join(map(repr, kwargs))} for the {kind!r} view")
     if kind == "centralized":
         return CentralizedView(env, shield=shield)
-    if kind == "self":
-        return SelfPlayView(env, shield=shield)
     if shield:
         raise ValueError(
             "shield=True: the 'all' view is the bare core env; call env.shield_action, or use kind='self'"

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import functools
+import warnings
+
 import torch
 from tensordict import TensorDictBase
 from torchrl.data import Composite
@@ -12,14 +15,32 @@ from sidewalk.symmetry import check_mirror_symmetric, mirror_action, mirror_obse
 from sidewalk.views.base import WORLD, _SidewalkView
 
 
+@functools.cache
+def _warn_legacy_keys() -> None:
+    """Warn once per process that ``legacy_keys=True`` writes keys that go in the next release."""
+    warnings.warn(
+        "SelfPlayView(legacy_keys=True) also writes ('agents', 'cost') and ('agents', 'mask'), deprecated: read "
+        "('agents', 'info', 'cost') and ('agents', 'info', 'mask'); the old keys go in the next release, and "
+        "legacy_keys=False drops them now (and this warning)",
+        FutureWarning,
+        stacklevel=4,
+    )
+
+
 class SelfPlayView(_SidewalkView):
     """Every agent is the learner (``opponent=self``): the core's multi-agent keys, for all B worlds.
 
-    Keys (batch shape (B,), agents group (B, N)): ``("agents", "observation")`` (each agent's ego-centric
-    observation), ``("agents", "action")``, ``("agents", "reward")`` (each agent's own reward, cooperative term
-    included), ``("agents", "cost")`` (each agent's safety cost of the step), each agent's own life cycle
-    ``("agents", "done"|"terminated"|"truncated")`` and ``("agents", "mask")``, the root ``done``/``terminated``/
-    ``truncated`` (B, 1), plus the ``"world"`` group (see the module docstring).
+    Keys (batch shape (B,), agents group (B, N)), in TorchRL's multi-agent conventions as its VMAS wrapper gives
+    them: ``("agents", "observation")`` (each agent's ego-centric observation, the group's only input entry),
+    ``("agents", "action")``, ``("agents", "reward")`` (each agent's own reward, cooperative term included), each
+    agent's own life cycle ``("agents", "done"|"terminated"|"truncated")``, and under ``("agents", "info")`` what is
+    not an input: the outcome flags ``INFO_KEYS`` (sticky, bool (B, N, 1)), ``cost`` (the agent's safety cost of the
+    step) and ``mask`` (below); the root ``done``/``terminated``/``truncated`` (B, 1) and ``state`` (B, N·k: the true
+    world, ``SidewalkEnvBase.global_state``, for a centralised critic or a mixer); plus the ``"world"`` group (see the
+    module docstring).
+
+    ``legacy_keys=True`` (this release's default, deprecated) also writes the earlier places of the cost and the mask,
+    ``("agents", "cost")`` and ``("agents", "mask")``, and warns once; ``False`` leaves the agents group as above.
 
     Each agent has its own life cycle, in TorchRL's multi-agent conventions (``docs/multiagent.md``):
 
@@ -27,7 +48,7 @@ class SelfPlayView(_SidewalkView):
     - an arrival keeps the agent's value open until the world ends, because eq. 2's cooperative reward for a partner
       who arrives later is still to come; the agent is terminated with the world (every agent arrived or crashed);
     - ``truncated``: the time limit, for every agent not terminated before it;
-    - ``mask`` (``~done``, as TorchRL's PettingZoo wrapper's): the agent's value is still open at this state, so the
+    - ``("agents", "info", "mask")`` (``~done``, as TorchRL's PettingZoo wrapper's ``mask``): the agent's value is still open at this state, so the
       step taken from it carries learning signal; learners leave the other steps out of every loss and statistic.
 
     The root ``done``/``terminated``/``truncated`` are the world's: every agent done, or the time limit. An agent's
@@ -40,8 +61,15 @@ class SelfPlayView(_SidewalkView):
     the mirror breaks. Refused for layouts the mirror does not map onto themselves.
     """
 
-    def __init__(self, env: SidewalkEnvBase, shield: bool = False, other_play: bool = False) -> None:
+    def __init__(
+        self, env: SidewalkEnvBase, shield: bool = False, other_play: bool = False, legacy_keys: bool = True
+    ) -> None:
         super().__init__(env, shield=shield)
+        if not isinstance(legacy_keys, bool):
+            raise TypeError(f"legacy_keys={legacy_keys!r} must be a bool")
+        if legacy_keys:
+            _warn_legacy_keys()
+        self.legacy_keys = legacy_keys
         if not isinstance(other_play, bool):
             raise TypeError(f"other_play={other_play!r} must be a bool")
         if other_play:
@@ -62,11 +90,14 @@ class SelfPlayView(_SidewalkView):
         agents_shape = self._agents_shape
         done = self.core.full_done_spec
         agent_done = {key: done[AGENT_GROUP, key].clone() for key in ("done", "terminated", "truncated")}
+        info = core_agents["info"].clone()
+        info.update({"cost": core_agents["cost"].clone(), "mask": core_agents["present"].clone()})
+        group = {"observation": core_agents["observation"].clone(), "info": info}
+        if self.legacy_keys:
+            group.update(cost=info["cost"].clone(), mask=info["mask"].clone())
         self.observation_spec = Composite(
-            {AGENT_GROUP: Composite(observation=core_agents["observation"].clone(),
-                                    cost=core_agents["cost"].clone(), mask=core_agents["present"].clone(),
-                                    shape=agents_shape, device=self.device),
-             WORLD: self._world_spec()},
+            {AGENT_GROUP: Composite(group, shape=agents_shape, device=self.device),
+             "state": self.core.global_state_spec(), WORLD: self._world_spec()},
             shape=self.batch_size,
             device=self.device,
         )
@@ -122,15 +153,20 @@ class SelfPlayView(_SidewalkView):
         terminated = crashed | flags["terminated"].unsqueeze(1).expand(*self._agents_shape, 1)
         truncated = flags["truncated"].unsqueeze(1) & ~crashed
         done = terminated | truncated
+        cost, mask = agents.get("cost"), ~done
         group = {
-            "observation": self._observation(agents), "cost": agents.get("cost"),
-            "done": done, "terminated": terminated, "truncated": truncated, "mask": ~done,
+            "observation": self._observation(agents),
+            "info": new_tensordict_unchecked({**dict(info.items()), "cost": cost, "mask": mask}, batch_size=self._agents_shape),
+            "done": done, "terminated": terminated, "truncated": truncated,
         }
+        if self.legacy_keys:
+            group.update(cost=cost, mask=mask)
         if not reset:
             group["reward"] = reward
         return new_tensordict_unchecked(
             {
                 AGENT_GROUP: new_tensordict_unchecked(group, batch_size=self._agents_shape),
+                "state": self.core.global_state(agents),
                 WORLD: self._world(agents, reward),
                 **flags,
             },

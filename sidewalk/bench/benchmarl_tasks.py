@@ -1,0 +1,151 @@
+"""BenchMARL's algorithms on the sidewalk's BenchMARL tasks (``sidewalk.interop.benchmarl``): each run at
+BenchMARL's defaults (its ``base_experiment.yaml``, each algorithm's YAML; the MLP model, the CNN on grid images)
+and the tasks' reward (the self-play presets'), for a frame budget, then evaluated as our learners are: one episode
+in each of 256 fresh worlds (``sidewalk.evaluate``, the evaluation seed stream ``runners/main.py`` uses), greedy.
+
+    python runners/bench.py benchmarl                                         # the table in docs/guide/benchmarl.md
+    python runners/bench.py benchmarl --bm-algorithms mappo --bm-tasks sidewalk_continuous --bm-seeds 0
+    python -m sidewalk.bench.benchmarl_tasks --bm-out results/benchmarl       # the same, as a module
+
+Each finished run is one row of ``<out>/benchmarl.csv`` (algorithm, task, seed, frames, wall-clock, final team
+success, deadlock, agent success), written whole and renamed after every run; a run already in it is skipped, so an
+interrupted table resumes where it stopped. BenchMARL's own logs and checkpoints go to ``<out>/runs``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import torch
+
+# The issue's grid: on-policy and off-policy continuous learners, and value-decomposition learners on the grid.
+DEFAULT_RUNS = {
+    "continuous": (("mappo", "ippo", "masac"), ("sidewalk_continuous", "door_continuous")),
+    "discrete": (("iql", "vdn", "qmix"), ("sidewalk_discrete", "door_discrete")),
+}
+ALGORITHM_CONFIGS = {
+    "mappo": "MappoConfig", "ippo": "IppoConfig", "masac": "MasacConfig", "isac": "IsacConfig",
+    "maddpg": "MaddpgConfig", "iddpg": "IddpgConfig", "iql": "IqlConfig", "vdn": "VdnConfig", "qmix": "QmixConfig",
+}
+COLUMNS = ["algorithm", "task", "seed", "frames", "wall_s", "team_success", "deadlock", "agent_success", "note"]
+EVAL_SEED_OFFSET = 1_000_003  # sidewalk.experiment.EVAL_SEED_OFFSET: the evaluation worlds of a seed-s run
+
+
+def parse_options(argv: list[str]) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(prog="runners/bench.py benchmarl", add_help=False)
+    parser.add_argument("--bm-algorithms", nargs="+", choices=sorted(ALGORITHM_CONFIGS))
+    parser.add_argument("--bm-tasks", nargs="+")
+    parser.add_argument("--bm-seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--bm-frames", type=int, default=240_000, help="frames per run (BenchMARL's max_n_frames)")
+    parser.add_argument("--bm-out", default="results/benchmarl")
+    parser.add_argument("--bm-eval-episodes", type=int, default=256)
+    args, _ = parser.parse_known_args(argv)
+    from sidewalk.interop.benchmarl import SidewalkTask
+
+    valid = [task.name.lower() for task in SidewalkTask]
+    bad = [task for task in args.bm_tasks or [] if task not in valid]
+    if bad:
+        parser.error(f"--bm-tasks {bad} are not sidewalk tasks; valid: {valid}")
+    if args.bm_frames < 1 or args.bm_eval_episodes < 1:
+        parser.error("--bm-frames and --bm-eval-episodes must be positive")
+    return {"algorithms": args.bm_algorithms, "tasks": args.bm_tasks, "seeds": args.bm_seeds,
+            "frames": args.bm_frames, "out": args.bm_out, "eval_episodes": args.bm_eval_episodes}
+
+
+def planned_runs(algorithms: list[str] | None, tasks: list[str] | None, seeds: list[int]) -> list[tuple[str, str, int]]:
+    """(algorithm, task, seed) in the order they run: seed-major, so a partial table has every setting's first seed."""
+    from sidewalk.interop.benchmarl import SidewalkTask
+
+    pairs = []
+    for domain, (domain_algorithms, domain_tasks) in DEFAULT_RUNS.items():
+        for task in tasks or domain_tasks:
+            if SidewalkTask[task.upper()].get_from_yaml().config["domain"] != domain:
+                continue
+            pairs += [(algorithm, task) for algorithm in algorithms or domain_algorithms]
+    return [(algorithm, task, seed) for seed in seeds for algorithm, task in pairs]
+
+
+def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, out: Path,
+                       eval_episodes: int) -> dict[str, Any]:
+    """One BenchMARL run at its defaults for ``frames`` frames, then our evaluation of its greedy policy."""
+    from benchmarl import algorithms
+    from benchmarl.experiment import Experiment, ExperimentConfig
+    from benchmarl.models import CnnConfig, MlpConfig
+    from torchrl.envs import Compose, TransformedEnv
+
+    from sidewalk.evaluate import evaluate
+    from sidewalk.interop.benchmarl import SidewalkTask, make_core
+    from sidewalk.views import SelfPlayView
+
+    task = SidewalkTask[task_name.upper()].get_from_yaml()
+    config = ExperimentConfig.get_from_yaml()
+    config.max_n_frames = frames
+    config.loggers, config.render, config.evaluation = ["csv"], False, False
+    config.checkpoint_at_end, config.keep_checkpoints_num = False, 1
+    config.save_folder = str(out / "runs")
+    (out / "runs").mkdir(parents=True, exist_ok=True)
+    images = task.config["domain"] == "discrete" and task.config["env"].get("observation", "image") == "image"
+    model = (CnnConfig if images else MlpConfig).get_from_yaml()
+    experiment = Experiment(
+        task=task, algorithm_config=getattr(algorithms, ALGORITHM_CONFIGS[algorithm]).get_from_yaml(),
+        model_config=model, critic_model_config=model, seed=seed, config=config,
+    )
+    start = time.perf_counter()
+    experiment.run()
+    wall_s = time.perf_counter() - start
+    view = SelfPlayView(make_core(task.config, eval_episodes, seed + EVAL_SEED_OFFSET, "cpu"), legacy_keys=False)
+    env = TransformedEnv(view, Compose(*task.get_env_transforms(view)))
+    metrics = evaluate(env, experiment.policy, seed=seed + EVAL_SEED_OFFSET)
+    return {"algorithm": algorithm, "task": task_name, "seed": seed, "frames": experiment.total_frames,
+            "wall_s": round(wall_s, 1), "team_success": metrics["team/success_rate"],
+            "deadlock": metrics["deadlock_rate"], "agent_success": metrics["success_rate"], "note": ""}
+
+
+def _write(rows: pd.DataFrame, path: Path) -> None:
+    partial = path.with_suffix(".csv.partial")
+    rows.to_csv(partial, index=False)
+    os.replace(partial, path)
+
+
+def run(algorithms: list[str] | None = None, tasks: list[str] | None = None, seeds: list[int] = (0, 1, 2),
+        frames: int = 240_000, out: str = "results/benchmarl", eval_episodes: int = 256) -> list[dict[str, Any]]:
+    torch.set_num_threads(1)
+    out_dir = Path(out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    table_path = out_dir / "benchmarl.csv"
+    table = pd.read_csv(table_path) if table_path.exists() else pd.DataFrame(columns=COLUMNS)
+    done = {(row.algorithm, row.task, int(row.seed)) for row in table.itertuples() if int(row.frames) >= frames}
+    for algorithm, task, seed in planned_runs(algorithms, tasks, list(seeds)):
+        if (algorithm, task, seed) in done:
+            continue
+        print(f"benchmarl: {algorithm} on sidewalk/{task}, seed {seed}, {frames:,} frames", flush=True)
+        row = train_and_evaluate(algorithm, task, seed, frames, out_dir, eval_episodes)
+        table = pd.concat([table[~((table.algorithm == algorithm) & (table.task == task) & (table.seed == seed))],
+                           pd.DataFrame([row])], ignore_index=True)
+        _write(table, table_path)
+    return table.to_dict("records")
+
+
+def format_rows(rows: list[dict[str, Any]]) -> str:
+    """Mean over seeds of each setting, with the seeds' values: the docs' table."""
+    if not rows:
+        return "(no runs)"
+    table = pd.DataFrame(rows)
+    lines = ["| algorithm | task | seeds | frames | wall-clock (s, mean) | team success (per seed) | deadlock (mean) |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for (algorithm, task), group in table.groupby(["algorithm", "task"], sort=False):
+        per_seed = ", ".join(f"{value:.2f}" for value in group.sort_values("seed").team_success)
+        lines.append(f"| {algorithm} | {task} | {len(group)} | {int(group.frames.mean()):,} | {group.wall_s.mean():.0f} "
+                     f"| {group.team_success.mean():.2f} ({per_seed}) | {group.deadlock.mean():.2f} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    import sys
+
+    print(format_rows(run(**parse_options(sys.argv[1:]))))
