@@ -32,7 +32,7 @@ ALGORITHM_CONFIGS = {
     "mappo": "MappoConfig", "ippo": "IppoConfig", "masac": "MasacConfig", "isac": "IsacConfig",
     "maddpg": "MaddpgConfig", "iddpg": "IddpgConfig", "iql": "IqlConfig", "vdn": "VdnConfig", "qmix": "QmixConfig",
 }
-COLUMNS = ["algorithm", "task", "seed", "frames", "wall_s", "team_success", "deadlock", "agent_success", "note"]
+COLUMNS = ["algorithm", "task", "observation", "seed", "frames", "wall_s", "team_success", "deadlock", "agent_success", "note"]
 EVAL_SEED_OFFSET = 1_000_003  # sidewalk.experiment.EVAL_SEED_OFFSET: the evaluation worlds of a seed-s run
 
 
@@ -44,6 +44,8 @@ def parse_options(argv: list[str]) -> dict[str, Any]:
     parser.add_argument("--bm-frames", type=int, default=240_000, help="frames per run (BenchMARL's max_n_frames)")
     parser.add_argument("--bm-out", default="results/benchmarl")
     parser.add_argument("--bm-eval-episodes", type=int, default=256)
+    parser.add_argument("--bm-grid-observation", choices=("image", "vector"), default="image",
+                        help="what the grid tasks' agents see: images (BenchMARL's CNN) or vectors (its MLP)")
     args, _ = parser.parse_known_args(argv)
     from sidewalk.interop.benchmarl import SidewalkTask
 
@@ -54,7 +56,8 @@ def parse_options(argv: list[str]) -> dict[str, Any]:
     if args.bm_frames < 1 or args.bm_eval_episodes < 1:
         parser.error("--bm-frames and --bm-eval-episodes must be positive")
     return {"algorithms": args.bm_algorithms, "tasks": args.bm_tasks, "seeds": args.bm_seeds,
-            "frames": args.bm_frames, "out": args.bm_out, "eval_episodes": args.bm_eval_episodes}
+            "frames": args.bm_frames, "out": args.bm_out, "eval_episodes": args.bm_eval_episodes,
+            "grid_observation": args.bm_grid_observation}
 
 
 def planned_runs(algorithms: list[str] | None, tasks: list[str] | None, seeds: list[int]) -> list[tuple[str, str, int]]:
@@ -70,8 +73,8 @@ def planned_runs(algorithms: list[str] | None, tasks: list[str] | None, seeds: l
     return [(algorithm, task, seed) for seed in seeds for algorithm, task in pairs]
 
 
-def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, out: Path,
-                       eval_episodes: int) -> dict[str, Any]:
+def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, out: Path, eval_episodes: int,
+                       grid_observation: str = "image") -> dict[str, Any]:
     """One BenchMARL run at its defaults for ``frames`` frames, then our evaluation of its greedy policy."""
     from benchmarl import algorithms
     from benchmarl.experiment import Experiment, ExperimentConfig
@@ -83,13 +86,15 @@ def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, o
     from sidewalk.views import SelfPlayView
 
     task = SidewalkTask[task_name.upper()].get_from_yaml()
+    if task.config["domain"] == "discrete":
+        task.config["env"]["observation"] = grid_observation
     config = ExperimentConfig.get_from_yaml()
     config.max_n_frames = frames
     config.loggers, config.render, config.evaluation = ["csv"], False, False
     config.checkpoint_at_end, config.keep_checkpoints_num = False, 1
     config.save_folder = str(out / "runs")
     (out / "runs").mkdir(parents=True, exist_ok=True)
-    images = task.config["domain"] == "discrete" and task.config["env"].get("observation", "image") == "image"
+    images = task.config["domain"] == "discrete" and grid_observation == "image"
     model = (CnnConfig if images else MlpConfig).get_from_yaml()
     experiment = Experiment(
         task=task, algorithm_config=getattr(algorithms, ALGORITHM_CONFIGS[algorithm]).get_from_yaml(),
@@ -101,7 +106,7 @@ def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, o
     view = SelfPlayView(make_core(task.config, eval_episodes, seed + EVAL_SEED_OFFSET, "cpu"), legacy_keys=False)
     env = TransformedEnv(view, Compose(*task.get_env_transforms(view)))
     metrics = evaluate(env, experiment.policy, seed=seed + EVAL_SEED_OFFSET)
-    return {"algorithm": algorithm, "task": task_name, "seed": seed, "frames": experiment.total_frames,
+    return {"algorithm": algorithm, "task": task_name, "observation": "image" if images else "vector", "seed": seed, "frames": experiment.total_frames,
             "wall_s": round(wall_s, 1), "team_success": metrics["team/success_rate"],
             "deadlock": metrics["deadlock_rate"], "agent_success": metrics["success_rate"], "note": ""}
 
@@ -113,20 +118,24 @@ def _write(rows: pd.DataFrame, path: Path) -> None:
 
 
 def run(algorithms: list[str] | None = None, tasks: list[str] | None = None, seeds: list[int] = (0, 1, 2),
-        frames: int = 240_000, out: str = "results/benchmarl", eval_episodes: int = 256) -> list[dict[str, Any]]:
+        frames: int = 240_000, out: str = "results/benchmarl", eval_episodes: int = 256,
+        grid_observation: str = "image") -> list[dict[str, Any]]:
     torch.set_num_threads(1)
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
     table_path = out_dir / "benchmarl.csv"
     table = pd.read_csv(table_path) if table_path.exists() else pd.DataFrame(columns=COLUMNS)
-    done = {(row.algorithm, row.task, int(row.seed)) for row in table.itertuples() if int(row.frames) >= frames}
+    if "observation" not in table:  # a table begun before the column: grid tasks ran on images then
+        table.insert(2, "observation", ["image" if task.endswith("discrete") else "vector" for task in table.task])
     for algorithm, task, seed in planned_runs(algorithms, tasks, list(seeds)):
-        if (algorithm, task, seed) in done:
+        observation = grid_observation if task.endswith("discrete") else "vector"
+        same = (table.algorithm == algorithm) & (table.task == task) & (table.seed == seed) & (
+            table.observation == observation)
+        if (table[same].frames >= frames).any():
             continue
-        print(f"benchmarl: {algorithm} on sidewalk/{task}, seed {seed}, {frames:,} frames", flush=True)
-        row = train_and_evaluate(algorithm, task, seed, frames, out_dir, eval_episodes)
-        table = pd.concat([table[~((table.algorithm == algorithm) & (table.task == task) & (table.seed == seed))],
-                           pd.DataFrame([row])], ignore_index=True)
+        print(f"benchmarl: {algorithm} on sidewalk/{task} ({observation}), seed {seed}, {frames:,} frames", flush=True)
+        row = train_and_evaluate(algorithm, task, seed, frames, out_dir, eval_episodes, grid_observation)
+        table = pd.concat([table[~same], pd.DataFrame([row])], ignore_index=True)
         _write(table, table_path)
     return table.to_dict("records")
 
@@ -136,11 +145,12 @@ def format_rows(rows: list[dict[str, Any]]) -> str:
     if not rows:
         return "(no runs)"
     table = pd.DataFrame(rows)
-    lines = ["| algorithm | task | seeds | frames | wall-clock (s, mean) | team success (per seed) | deadlock (mean) |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
-    for (algorithm, task), group in table.groupby(["algorithm", "task"], sort=False):
+    lines = [("| algorithm | task | observation | seeds | frames | wall-clock (s, mean) | team success (per seed) "
+              "| deadlock (mean) |"), "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for (algorithm, task, observation), group in table.groupby(["algorithm", "task", "observation"], sort=False):
         per_seed = ", ".join(f"{value:.2f}" for value in group.sort_values("seed").team_success)
-        lines.append(f"| {algorithm} | {task} | {len(group)} | {int(group.frames.mean()):,} | {group.wall_s.mean():.0f} "
+        lines.append(f"| {algorithm} | {task} | {observation} | {len(group)} | {int(group.frames.mean()):,} "
+                     f"| {group.wall_s.mean():.0f} "
                      f"| {group.team_success.mean():.2f} ({per_seed}) | {group.deadlock.mean():.2f} |")
     return "\n".join(lines)
 

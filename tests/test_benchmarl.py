@@ -1,0 +1,121 @@
+"""The sidewalk as BenchMARL tasks (sidewalk.interop.benchmarl): configs that match the self-play presets, specs as
+BenchMARL reads them, its command line, and BenchMARL's MAPPO (continuous) and IQL / QMIX (grid images, CNN)
+training two small iterations. The README's test command installs BenchMARL, so these run in .ci/run."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from torchrl.envs import Compose, TransformedEnv
+from torchrl.envs.utils import check_env_specs
+
+if importlib.util.find_spec("benchmarl") is None:  # not importorskip: BenchMARL imports only after our adapter
+    pytest.skip("BenchMARL is installed by the README's test command", allow_module_level=True)
+
+from sidewalk.interop.benchmarl import SidewalkTask, make_core  # noqa: E402
+from sidewalk.schema import env_params_of  # noqa: E402
+
+PRESET = {task: f"selfplay_{task.name.lower().replace('sidewalk_', '')}"
+          if task.name.startswith("SIDEWALK") else "selfplay_" + task.name.lower() for task in SidewalkTask}
+
+
+@pytest.mark.parametrize("task", list(SidewalkTask), ids=lambda task: task.name.lower())
+def test_each_task_is_the_worlds_of_its_self_play_preset(task):
+    from sidewalk.reproduce import compose
+
+    cfg = compose([f"+experiment={PRESET[task]}"])
+    config = task.get_from_yaml().config
+    assert config["domain"] == cfg.env.domain
+    assert make_core(config, 1, 0, "cpu").params == env_params_of(cfg)
+
+
+def test_a_bad_task_config_names_the_bad_value_and_the_valid_ones():
+    with pytest.raises(ValueError, match=r"domain='grid' is not valid; valid: \['discrete', 'continuous'\]"):
+        make_core({"domain": "grid"}, 1, 0, "cpu")
+    with pytest.raises(ValueError, match=r"unknown key\(s\) \['layout'\]; valid: \['domain', 'noise', 'env', 'reward'\]"):
+        make_core({"domain": "discrete", "layout": "door"}, 1, 0, "cpu")
+
+
+@pytest.mark.parametrize("name", ["door_continuous", "door_discrete"])
+def test_specs_as_benchmarl_reads_them(name):
+    task = SidewalkTask[name.upper()].get_from_yaml()
+    env = task.get_env_fun(num_envs=3, continuous_actions=name.endswith("continuous"), seed=0, device="cpu")()
+    env = TransformedEnv(env, Compose(*task.get_env_transforms(env)))
+    check_env_specs(env)
+    assert task.group_map(env) == {"agents": ["agent_0", "agent_1", "agent_2"]}
+    assert task.max_steps(env) == 300
+    assert set(task.observation_spec(env)["agents"].keys()) == {"observation"}  # the models' only input
+    assert {"reached_goal", "cost", "mask"} <= set(task.info_spec(env)["agents", "info"].keys())
+    assert task.state_spec(env)["state"].shape == (3 * (8 if name.endswith("continuous") else 5),)
+    observation = env.reset().get(("agents", "observation"))
+    if name == "door_discrete":  # images channels last in [0, 1], as BenchMARL's CNN takes them
+        assert observation.shape[-1] == 1 and observation.dtype == torch.float32
+        assert 0.0 <= float(observation.min()) and float(observation.max()) <= 1.0 and float(observation.max()) > 0
+
+
+def test_the_adapter_lets_benchmarl_run_on_this_torchrl():
+    import benchmarl.algorithms.iql as benchmarl_iql
+    import torchrl.collectors as collectors
+
+    from sidewalk._torchrl import adapt_benchmarl
+
+    adapt_benchmarl()  # idempotent: a second call changes nothing
+    assert collectors.SyncDataCollector is collectors.Collector
+    assert benchmarl_iql.QValueModule.keywords == {"strict_shape": False}
+
+
+def small_experiment(algorithm: str, task: str, model: str, tmp_path: Path):
+    from benchmarl import algorithms
+    from benchmarl.experiment import Experiment, ExperimentConfig
+    from benchmarl.models import CnnConfig, MlpConfig
+
+    config = ExperimentConfig.get_from_yaml()
+    config.max_n_iters, config.max_n_frames = 2, None
+    config.loggers, config.render, config.save_folder = ["csv"], False, str(tmp_path)
+    config.on_policy_collected_frames_per_batch = config.off_policy_collected_frames_per_batch = 100
+    config.on_policy_minibatch_size, config.on_policy_n_minibatch_iters = 50, 1
+    config.off_policy_n_optimizer_steps, config.off_policy_train_batch_size = 2, 16
+    config.evaluation_interval, config.evaluation_episodes = 100, 2
+    model_config = {"mlp": MlpConfig, "cnn": CnnConfig}[model].get_from_yaml()
+    return Experiment(
+        task=SidewalkTask[task.upper()].get_from_yaml(),
+        algorithm_config=getattr(algorithms, f"{algorithm}Config").get_from_yaml(),
+        model_config=model_config, critic_model_config=MlpConfig.get_from_yaml(), seed=0, config=config,
+    )
+
+
+@pytest.mark.parametrize(("algorithm", "task", "model"), [
+    ("Mappo", "sidewalk_continuous", "mlp"),
+    ("Iql", "sidewalk_discrete", "cnn"),
+    ("Qmix", "door_discrete", "cnn"),
+])
+def test_benchmarl_trains_two_iterations_on_a_sidewalk_task(algorithm, task, model, tmp_path):
+    torch.manual_seed(0)
+    experiment = small_experiment(algorithm, task, model, tmp_path)
+    before = [p.detach().clone() for p in experiment.policy.parameters()]
+    experiment.run()
+    assert experiment.n_iters_performed == 2 and experiment.total_frames == 200
+    assert any(not torch.equal(a, b) for a, b in zip(before, experiment.policy.parameters(), strict=True))
+    # BenchMARL's per-group info logging sees the outcome flags and the cost.
+    logged = {path.stem for path in Path(experiment.folder_name).rglob("*.csv")}
+    assert {"collection_agents_info_reached_goal", "collection_agents_info_cost"} <= logged, sorted(logged)
+
+
+def test_benchmarl_command_line_runs_a_sidewalk_task(tmp_path):
+    out = subprocess.run(
+        [sys.executable, "-m", "sidewalk.interop.benchmarl", "algorithm=mappo", "task=sidewalk/zipper_continuous",
+         "experiment.max_n_iters=1", "experiment.loggers=[csv]", "experiment.render=false",
+         "experiment.evaluation=false", "experiment.on_policy_collected_frames_per_batch=100",
+         "experiment.on_policy_minibatch_size=50", "experiment.on_policy_n_minibatch_iters=1",
+         f"experiment.save_folder={tmp_path}", f"hydra.run.dir={tmp_path / 'hydra'}"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    rows = list(csv.reader(next(tmp_path.rglob("collection_agents_info_reached_goal.csv")).open()))
+    assert len(rows) == 1  # one iteration logged
