@@ -22,6 +22,8 @@ from typing import Any
 
 import pandas as pd
 import torch
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 # The issue's grid: on-policy and off-policy continuous learners, and value-decomposition learners on the grid.
 DEFAULT_RUNS = {
@@ -32,7 +34,8 @@ ALGORITHM_CONFIGS = {
     "mappo": "MappoConfig", "ippo": "IppoConfig", "masac": "MasacConfig", "isac": "IsacConfig",
     "maddpg": "MaddpgConfig", "iddpg": "IddpgConfig", "iql": "IqlConfig", "vdn": "VdnConfig", "qmix": "QmixConfig",
 }
-COLUMNS = ["algorithm", "task", "observation", "seed", "frames", "wall_s", "team_success", "deadlock", "agent_success", "note"]
+COLUMNS = ["algorithm", "task", "observation", "seed", "frames", "wall_s", "team_success", "deadlock", "agent_success",
+           "team_success_sampled", "note"]
 EVAL_SEED_OFFSET = 1_000_003  # sidewalk.experiment.EVAL_SEED_OFFSET: the evaluation worlds of a seed-s run
 
 
@@ -106,9 +109,27 @@ def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, o
     view = SelfPlayView(make_core(task.config, eval_episodes, seed + EVAL_SEED_OFFSET, "cpu"), legacy_keys=False)
     env = TransformedEnv(view, Compose(*task.get_env_transforms(view)))
     metrics = evaluate(env, experiment.policy, seed=seed + EVAL_SEED_OFFSET)
+    # The same worlds with the policy's actions sampled, as BenchMARL collects: a deterministic policy can fail where
+    # its sampling succeeds (and the other way round).
+    sampled = evaluate(env, _Sampling(experiment.policy), seed=seed + EVAL_SEED_OFFSET, deterministic=False)
+    observation = "image" if images else "vector"
+    torch.save(experiment.policy.state_dict(), out / "runs" / f"{algorithm}_{task_name}_{observation}_seed{seed}.pt")
     return {"algorithm": algorithm, "task": task_name, "observation": "image" if images else "vector", "seed": seed, "frames": experiment.total_frames,
             "wall_s": round(wall_s, 1), "team_success": metrics["team/success_rate"],
-            "deadlock": metrics["deadlock_rate"], "agent_success": metrics["success_rate"], "note": ""}
+            "deadlock": metrics["deadlock_rate"], "agent_success": metrics["success_rate"],
+            "team_success_sampled": sampled["team/success_rate"], "note": ""}
+
+
+class _Sampling(TensorDictModuleBase):
+    """``policy`` with its actions sampled (TorchRL's RANDOM exploration), whatever the caller's context."""
+
+    def __init__(self, policy: TensorDictModuleBase) -> None:
+        super().__init__()
+        self.policy, self.in_keys, self.out_keys = policy, policy.in_keys, policy.out_keys
+
+    def forward(self, tensordict):
+        with set_exploration_type(ExplorationType.RANDOM):
+            return self.policy(tensordict)
 
 
 def _write(rows: pd.DataFrame, path: Path) -> None:

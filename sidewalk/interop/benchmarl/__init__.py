@@ -1,17 +1,19 @@
 """The Sidewalk and its §7 scenarios as BenchMARL tasks: every BenchMARL algorithm (MAPPO, IPPO, MASAC, IQL, VDN,
-QMIX, ...) trains on them as on its own tasks (docs/guide/benchmarl.md).
+QMIX, ...) trains on them as on its own tasks (docs/guide/benchmarl.md). From Python::
 
+    from sidewalk.interop.benchmarl import SidewalkTask  # first: adapts BenchMARL to this TorchRL
     from benchmarl.algorithms import MappoConfig
     from benchmarl.experiment import Experiment, ExperimentConfig
     from benchmarl.models import MlpConfig
-    from sidewalk.interop.benchmarl import SidewalkTask
 
-    experiment = Experiment(task=SidewalkTask.DOOR_CONTINUOUS.get_from_yaml(), algorithm_config=MappoConfig.get_from_yaml(),
-                            model_config=MlpConfig.get_from_yaml(), critic_model_config=MlpConfig.get_from_yaml(),
-                            seed=0, config=ExperimentConfig.get_from_yaml())
+    experiment = Experiment(
+        task=SidewalkTask.DOOR_CONTINUOUS.get_from_yaml(), algorithm_config=MappoConfig.get_from_yaml(),
+        model_config=MlpConfig.get_from_yaml(), critic_model_config=MlpConfig.get_from_yaml(), seed=0,
+        config=ExperimentConfig.get_from_yaml(),
+    )
     experiment.run()
 
-or from the command line, BenchMARL's ``run.py`` with the sidewalk's tasks on its search path:
+or from the command line, BenchMARL's ``run.py`` with the sidewalk's tasks on its search path::
 
     python -m sidewalk.interop.benchmarl algorithm=mappo task=sidewalk/door_continuous
 
@@ -30,6 +32,7 @@ command line.
 from __future__ import annotations
 
 import copy
+import importlib.util
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -93,7 +96,9 @@ class SidewalkTaskClass(TaskClass):
         return env.max_steps
 
     def has_render(self, env: EnvBase) -> bool:
-        return True
+        # TorchRL 0.14 writes BenchMARL's evaluation videos with torchcodec: without it, BenchMARL's default
+        # render=true would fail at the first evaluation, so the task then says it has nothing to render.
+        return importlib.util.find_spec("torchcodec") is not None
 
     def group_map(self, env: EnvBase) -> dict[str, list[str]]:
         return env.group_map
