@@ -20,7 +20,7 @@ def _warn_legacy_keys() -> None:
     """Warn once per process that ``legacy_keys=True`` writes keys that go in the next release."""
     warnings.warn(
         "SelfPlayView(legacy_keys=True) also writes ('agents', 'cost') and ('agents', 'mask'), deprecated: read "
-        "('agents', 'info', 'cost') and ('agents', 'info', 'mask'); the old keys go in the next release, and "
+        "('agents', 'info', 'cost') and ('agents', 'info', 'mask'); the old keys go in sidewalk 0.2, and "
         "legacy_keys=False drops them now (and this warning)",
         FutureWarning,
         stacklevel=4,
@@ -39,7 +39,7 @@ class SelfPlayView(_SidewalkView):
     world, ``SidewalkEnvBase.global_state``, for a centralised critic or a mixer); plus the ``"world"`` group (see the
     module docstring).
 
-    ``legacy_keys=True`` (this release's default, deprecated) also writes the earlier places of the cost and the mask,
+    ``legacy_keys=True`` (the default until sidewalk 0.2, deprecated) also writes the earlier places of the cost and the mask,
     ``("agents", "cost")`` and ``("agents", "mask")``, and warns once; ``False`` leaves the agents group as above.
 
     Each agent has its own life cycle, in TorchRL's multi-agent conventions (``docs/multiagent.md``):
@@ -48,8 +48,9 @@ class SelfPlayView(_SidewalkView):
     - an arrival keeps the agent's value open until the world ends, because eq. 2's cooperative reward for a partner
       who arrives later is still to come; the agent is terminated with the world (every agent arrived or crashed);
     - ``truncated``: the time limit, for every agent not terminated before it;
-    - ``("agents", "info", "mask")`` (``~done``, as TorchRL's PettingZoo wrapper's ``mask``): the agent's value is still open at this state, so the
-      step taken from it carries learning signal; learners leave the other steps out of every loss and statistic.
+    - ``("agents", "info", "mask")`` (``~done``, as TorchRL's PettingZoo wrapper's ``mask``): the agent's value is
+      still open at this state, so the step taken from it carries learning signal; learners leave the other steps out
+      of every loss and statistic.
 
     The root ``done``/``terminated``/``truncated`` are the world's: every agent done, or the time limit. An agent's
     own outcome flags are in ``("world", "info")``; whether it still moves is in its observation (``active``).
@@ -156,7 +157,9 @@ class SelfPlayView(_SidewalkView):
         cost, mask = agents.get("cost"), ~done
         group = {
             "observation": self._observation(agents),
-            "info": new_tensordict_unchecked({**dict(info.items()), "cost": cost, "mask": mask}, batch_size=self._agents_shape),
+            "info": new_tensordict_unchecked(
+                {**dict(info.items()), "cost": cost, "mask": mask}, batch_size=self._agents_shape
+            ),
             "done": done, "terminated": terminated, "truncated": truncated,
         }
         if self.legacy_keys:
