@@ -13,6 +13,7 @@
     python runners/bench.py multiagent         # ~12 min: IPPO training frames/s, ours vs TorchRL's VMAS example
     python runners/bench.py groups             # ~25 min: 5 seeds as one process (replicas=5) vs one after another
     python runners/bench.py image_ppo          # ~3 min: s/iteration of grid IPPO/MAPPO, image vs vector settings
+    python runners/bench.py benchmarl --bm-tasks sidewalk_continuous   # hours: BenchMARL's learners on our tasks
 
 Sections: ``env`` (env-steps/s of both domains beside VMAS give_way), ``planning`` (µs per plan per world of the
 scripted planners beside scipy; with ``--baseline``, a checkout directory or revision, CPU ms per plan of both
@@ -32,7 +33,10 @@ batch, epochs and minibatches: ``--ma-steps``, ``--ma-iterations``, ``--ma-warmu
 default), ``groups`` (the wall-clock of 5 seeds trained as one process, ``replicas=5``, beside the same runs one
 after another, TRPO continuous and DQN grid: ``--setups``, ``--replicas``, ``--iterations``, ``--full``; not run by
 default), ``image_ppo`` (seconds per iteration of grid IPPO and MAPPO at their image settings beside the vector
-settings, interleaved in one process; not run by default). Flags after the sections that are not the ones below go
+settings, interleaved in one process; not run by default), ``benchmarl`` (BenchMARL's algorithms at their defaults on
+the sidewalk's BenchMARL tasks, final team success on 256 fresh worlds, a resumable table: ``--bm-algorithms``,
+``--bm-tasks``, ``--bm-seeds``, ``--bm-frames``, ``--bm-out``, ``--bm-grid-observation``; docs/guide/benchmarl.md; not
+run by default). Flags after the sections that are not the ones below go
 to the sections that take flags of their own (``learners``: ``--opponent``, ``--frames``, ``--seeds``,
 ``--setups``, ``--learners``, ``--noise``, ``--eval-episodes``; see ``python -m sidewalk.bench.learners -h``).
 A section module has ``run(**kwargs) -> list[dict]``; it may add ``parse_options(argv) -> kwargs`` (its own flags,

@@ -120,3 +120,23 @@ def test_benchmarl_command_line_runs_a_sidewalk_task(tmp_path):
     assert out.returncode == 0, out.stderr[-3000:]
     rows = list(csv.reader(next(tmp_path.rglob("collection_agents_info_reached_goal.csv")).open()))
     assert len(rows) == 1  # one iteration logged
+
+
+def test_the_comparison_table_writes_a_row_per_run_and_skips_finished_runs(tmp_path, monkeypatch):
+    from sidewalk.bench import benchmarl_tasks
+
+    with pytest.raises(SystemExit):
+        benchmarl_tasks.parse_options(["--bm-tasks", "hallway"])  # names the valid tasks (argparse error)
+    rows = benchmarl_tasks.run(algorithms=["mappo"], tasks=["zipper_continuous"], seeds=[0], frames=6000,
+                               out=str(tmp_path), eval_episodes=4)
+    assert [(row["algorithm"], row["task"], row["seed"], row["frames"]) for row in rows] == [
+        ("mappo", "zipper_continuous", 0, 6000)]
+    assert 0.0 <= rows[0]["team_success"] <= 1.0
+    assert (tmp_path / "runs" / "mappo_zipper_continuous_vector_seed0.pt").exists()
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("a finished run was trained again")
+
+    monkeypatch.setattr(benchmarl_tasks, "train_and_evaluate", no_training)
+    assert benchmarl_tasks.run(algorithms=["mappo"], tasks=["zipper_continuous"], seeds=[0], frames=6000,
+                               out=str(tmp_path), eval_episodes=4) == rows

@@ -7,8 +7,8 @@ in each of 256 fresh worlds (``sidewalk.evaluate``, the evaluation seed stream `
     python runners/bench.py benchmarl --bm-algorithms mappo --bm-tasks sidewalk_continuous --bm-seeds 0
     python -m sidewalk.bench.benchmarl_tasks --bm-out results/benchmarl       # the same, as a module
 
-Each finished run is one row of ``<out>/benchmarl.csv`` (algorithm, task, seed, frames, wall-clock, final team
-success, deadlock, agent success), written whole and renamed after every run; a run already in it is skipped, so an
+Each finished run is one row of ``<out>/benchmarl.csv`` (algorithm, task, observation, seed, frames, wall-clock,
+final team success greedy, deadlock, agent success, team success with sampled actions), written whole and renamed after every run; a run already in it is skipped, so an
 interrupted table resumes where it stopped. BenchMARL's own logs and checkpoints go to ``<out>/runs``.
 """
 
@@ -35,7 +35,7 @@ ALGORITHM_CONFIGS = {
     "maddpg": "MaddpgConfig", "iddpg": "IddpgConfig", "iql": "IqlConfig", "vdn": "VdnConfig", "qmix": "QmixConfig",
 }
 COLUMNS = ["algorithm", "task", "observation", "seed", "frames", "wall_s", "team_success", "deadlock", "agent_success",
-           "team_success_sampled", "note"]
+           "team_success_sampled"]
 EVAL_SEED_OFFSET = 1_000_003  # sidewalk.experiment.EVAL_SEED_OFFSET: the evaluation worlds of a seed-s run
 
 
@@ -117,7 +117,7 @@ def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, o
     return {"algorithm": algorithm, "task": task_name, "observation": "image" if images else "vector", "seed": seed, "frames": experiment.total_frames,
             "wall_s": round(wall_s, 1), "team_success": metrics["team/success_rate"],
             "deadlock": metrics["deadlock_rate"], "agent_success": metrics["success_rate"],
-            "team_success_sampled": sampled["team/success_rate"], "note": ""}
+            "team_success_sampled": sampled["team/success_rate"]}
 
 
 class _Sampling(TensorDictModuleBase):
