@@ -38,7 +38,7 @@ def test_each_task_is_the_worlds_of_its_self_play_preset(task):
 def test_a_bad_task_config_names_the_bad_value_and_the_valid_ones():
     with pytest.raises(ValueError, match=r"domain='grid' is not valid; valid: \['discrete', 'continuous'\]"):
         make_core({"domain": "grid"}, 1, 0, "cpu")
-    with pytest.raises(ValueError, match=r"unknown key\(s\) \['layout'\]; valid: \['domain', 'noise', 'env', 'reward'\]"):
+    with pytest.raises(ValueError, match=r"unknown key\(s\) \['layout'\]; valid: \['domain', 'noise', 'env', 'reward', 'state'\]"):
         make_core({"domain": "discrete", "layout": "door"}, 1, 0, "cpu")
 
 
@@ -54,6 +54,8 @@ def test_specs_as_benchmarl_reads_them(name):
     assert set(task.observation_spec(env)["agents"].keys()) == {"observation"}  # the models' only input
     assert {"reached_goal", "cost", "mask"} <= set(task.info_spec(env)["agents", "info"].keys())
     assert task.state_spec(env)["state"].shape == (3 * (8 if name.endswith("continuous") else 5),)
+    task.config["state"] = False  # critics and mixers on the agents' observations instead
+    assert task.state_spec(env) is None
     observation = env.reset().get(("agents", "observation"))
     if name == "door_discrete":  # images channels last in [0, 1], as BenchMARL's CNN takes them
         assert observation.shape[-1] == 1 and observation.dtype == torch.float32

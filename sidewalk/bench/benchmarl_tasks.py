@@ -166,13 +166,13 @@ def format_rows(rows: list[dict[str, Any]]) -> str:
     if not rows:
         return "(no runs)"
     table = pd.DataFrame(rows)
-    lines = [("| algorithm | task | observation | seeds | frames | wall-clock (s, mean) | team success (per seed) "
-              "| deadlock (mean) |"), "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = [("| algorithm | task | observation | seeds | frames | wall-clock (s, mean) | team success, greedy (per seed) "
+              "| team success, sampled (mean) | deadlock (mean) |"), "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for (algorithm, task, observation), group in table.groupby(["algorithm", "task", "observation"], sort=False):
         per_seed = ", ".join(f"{value:.2f}" for value in group.sort_values("seed").team_success)
         lines.append(f"| {algorithm} | {task} | {observation} | {len(group)} | {int(group.frames.mean()):,} "
-                     f"| {group.wall_s.mean():.0f} "
-                     f"| {group.team_success.mean():.2f} ({per_seed}) | {group.deadlock.mean():.2f} |")
+                     f"| {group.wall_s.mean():.0f} | {group.team_success.mean():.2f} ({per_seed}) "
+                     f"| {group.team_success_sampled.mean():.2f} | {group.deadlock.mean():.2f} |")
     return "\n".join(lines)
 
 

@@ -55,7 +55,7 @@ from sidewalk.views.selfplay import SelfPlayView
 
 ENV_NAME = "sidewalk"
 CONFIG_DIR = Path(__file__).parent / "conf"  # BenchMARL's config layout: conf/task/sidewalk/<task>.yaml
-TASK_CONFIG_KEYS = ("domain", "noise", "env", "reward")
+TASK_CONFIG_KEYS = ("domain", "noise", "env", "reward", "state")
 _CORES = {"discrete": DiscreteSidewalkEnv, "continuous": ContinuousSidewalkEnv}
 OBSERVATION_KEY = ("agents", "observation")
 
@@ -63,7 +63,8 @@ OBSERVATION_KEY = ("agents", "observation")
 def make_core(config: dict[str, Any], num_envs: int, seed: int | None, device: Any):
     """The core env of ``num_envs`` worlds that a task's ``config`` describes: its ``domain``, ``noise``, ``env``
     fields (``sidewalk.envs`` params; the room of the layout where not given) and ``reward`` fields (the explicit
-    reward; ``c_progress`` defaults to self-play's shaping, ``sidewalk.schema.SELFPLAY_PROGRESS``)."""
+    reward; ``c_progress`` defaults to self-play's shaping, ``sidewalk.schema.SELFPLAY_PROGRESS``). ``state`` (default
+    true) is the task's: whether BenchMARL is given the root state for its critics and mixers."""
     unknown = sorted(set(config) - set(TASK_CONFIG_KEYS))
     if unknown:
         raise ValueError(f"sidewalk task config: unknown key(s) {unknown}; valid: {list(TASK_CONFIG_KEYS)}")
@@ -117,7 +118,10 @@ class SidewalkTaskClass(TaskClass):
             {group: Composite(info=spec[group, "info"].clone(), shape=spec[group].shape) for group in self.group_map(env)}
         )
 
-    def state_spec(self, env: EnvBase) -> Composite:
+    def state_spec(self, env: EnvBase) -> Composite | None:
+        # state: false leaves BenchMARL's critics and mixers on every agent's observation, as for VMAS's tasks.
+        if not self.config.get("state", True):
+            return None
         return Composite(state=env.full_observation_spec_unbatched["state"])
 
     def action_spec(self, env: EnvBase) -> Composite:
