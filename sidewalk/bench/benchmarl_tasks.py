@@ -8,14 +8,13 @@ in each of 256 fresh worlds (``sidewalk.evaluate``, the evaluation seed stream `
     python -m sidewalk.bench.benchmarl_tasks --bm-out results/benchmarl       # the same, as a module
 
 Each finished run is one row of ``<out>/benchmarl.csv`` (algorithm, task, observation, seed, frames, wall-clock,
-final team success greedy, deadlock, agent success, team success with sampled actions), written whole and renamed after every run; a run already in it is skipped, so an
-interrupted table resumes where it stopped. BenchMARL's own logs and checkpoints go to ``<out>/runs``.
+final team success greedy, deadlock, agent success, team success with sampled actions), written whole and renamed
+after every run; a run already in it is skipped, so an interrupted table resumes where it stopped. BenchMARL's own logs and checkpoints go to ``<out>/runs``.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -36,7 +35,6 @@ ALGORITHM_CONFIGS = {
 }
 COLUMNS = ["algorithm", "task", "observation", "seed", "frames", "wall_s", "team_success", "deadlock", "agent_success",
            "team_success_sampled"]
-EVAL_SEED_OFFSET = 1_000_003  # sidewalk.experiment.EVAL_SEED_OFFSET: the evaluation worlds of a seed-s run
 
 
 def parse_options(argv: list[str]) -> dict[str, Any]:
@@ -85,8 +83,8 @@ def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, o
     from torchrl.envs import Compose, TransformedEnv
 
     from sidewalk.evaluate import evaluate
-    from sidewalk.interop.benchmarl import SidewalkTask, make_core
-    from sidewalk.views import SelfPlayView
+    from sidewalk.experiment import EVAL_SEED_OFFSET
+    from sidewalk.interop.benchmarl import SidewalkTask
 
     task = SidewalkTask[task_name.upper()].get_from_yaml()
     if task.config["domain"] == "discrete":
@@ -106,7 +104,7 @@ def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, o
     start = time.perf_counter()
     experiment.run()
     wall_s = time.perf_counter() - start
-    view = SelfPlayView(make_core(task.config, eval_episodes, seed + EVAL_SEED_OFFSET, "cpu"), legacy_keys=False)
+    view = task.get_env_fun(eval_episodes, experiment.continuous_actions, seed + EVAL_SEED_OFFSET, "cpu")()
     env = TransformedEnv(view, Compose(*task.get_env_transforms(view)))
     metrics = evaluate(env, experiment.policy, seed=seed + EVAL_SEED_OFFSET)
     # The same worlds with the policy's actions sampled, as BenchMARL collects: a deterministic policy can fail where
@@ -114,8 +112,8 @@ def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, o
     sampled = evaluate(env, _Sampling(experiment.policy), seed=seed + EVAL_SEED_OFFSET, deterministic=False)
     observation = "image" if images else "vector"
     torch.save(experiment.policy.state_dict(), out / "runs" / f"{algorithm}_{task_name}_{observation}_seed{seed}.pt")
-    return {"algorithm": algorithm, "task": task_name, "observation": "image" if images else "vector", "seed": seed, "frames": experiment.total_frames,
-            "wall_s": round(wall_s, 1), "team_success": metrics["team/success_rate"],
+    return {"algorithm": algorithm, "task": task_name, "observation": observation, "seed": seed,
+            "frames": experiment.total_frames, "wall_s": round(wall_s, 1), "team_success": metrics["team/success_rate"],
             "deadlock": metrics["deadlock_rate"], "agent_success": metrics["success_rate"],
             "team_success_sampled": sampled["team/success_rate"]}
 
@@ -132,22 +130,16 @@ class _Sampling(TensorDictModuleBase):
             return self.policy(tensordict)
 
 
-def _write(rows: pd.DataFrame, path: Path) -> None:
-    partial = path.with_suffix(".csv.partial")
-    rows.to_csv(partial, index=False)
-    os.replace(partial, path)
-
-
 def run(algorithms: list[str] | None = None, tasks: list[str] | None = None, seeds: list[int] = (0, 1, 2),
         frames: int = 240_000, out: str = "results/benchmarl", eval_episodes: int = 256,
         grid_observation: str = "image") -> list[dict[str, Any]]:
+    from sidewalk.run_folder import atomic_write
+
     torch.set_num_threads(1)
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
     table_path = out_dir / "benchmarl.csv"
     table = pd.read_csv(table_path) if table_path.exists() else pd.DataFrame(columns=COLUMNS)
-    if "observation" not in table:  # a table begun before the column: grid tasks ran on images then
-        table.insert(2, "observation", ["image" if task.endswith("discrete") else "vector" for task in table.task])
     for algorithm, task, seed in planned_runs(algorithms, tasks, list(seeds)):
         observation = grid_observation if task.endswith("discrete") else "vector"
         same = (table.algorithm == algorithm) & (table.task == task) & (table.seed == seed) & (
@@ -157,7 +149,7 @@ def run(algorithms: list[str] | None = None, tasks: list[str] | None = None, see
         print(f"benchmarl: {algorithm} on sidewalk/{task} ({observation}), seed {seed}, {frames:,} frames", flush=True)
         row = train_and_evaluate(algorithm, task, seed, frames, out_dir, eval_episodes, grid_observation)
         table = pd.concat([table[~same], pd.DataFrame([row])], ignore_index=True)
-        _write(table, table_path)
+        atomic_write(table_path, lambda tmp, rows=table: rows.to_csv(tmp, index=False))
     return table.to_dict("records")
 
 

@@ -143,6 +143,8 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
     def _init_world(self) -> None:
         layout, device, n = self.layout, self.device, self.n_agents
         self.rows, self.cols = layout.rows, layout.cols
+        # global_state's scale of a cell: the grid's extent, at least 1 (a one-row grid).
+        self._cell_extent = torch.tensor([self.rows - 1, self.cols - 1], dtype=torch.float32, device=device).clamp(min=1)
         self._move_row = torch.tensor([dr for dr, _ in MOVES], dtype=torch.long, device=device)
         self._move_col = torch.tensor([dc for _, dc in MOVES], dtype=torch.long, device=device)
         self._blocked = layout.blocked_mask(device).reshape(-1)
@@ -314,7 +316,7 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         return gap_sq <= self.params.near_miss_margin**2  # cells: at the margin counts (1: the next cell)
 
     def _state_features(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
-        extent = torch.tensor([self.rows - 1, self.cols - 1], dtype=torch.float32, device=self.device).clamp(min=1)
+        extent = self._cell_extent
         return torch.cat([state.to(torch.float32) / extent, goal.to(torch.float32) / extent], dim=-1)
 
     def _observe(self, worlds: torch.Tensor | None) -> dict[str, torch.Tensor]:

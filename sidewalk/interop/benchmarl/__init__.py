@@ -47,16 +47,14 @@ from benchmarl.environments.common import Task, TaskClass
 from torchrl.data import Composite
 from torchrl.envs import DTypeCastTransform, EnvBase, ObservationNorm, PermuteTransform, Transform
 
-from sidewalk.envs.grid import DiscreteSidewalkEnv
 from sidewalk.envs.rewards import RewardParams
-from sidewalk.envs.unicycle import ContinuousSidewalkEnv
+from sidewalk.interop.gymnasium import DOMAINS
 from sidewalk.schema import SELFPLAY_PROGRESS
 from sidewalk.views.selfplay import SelfPlayView
 
 ENV_NAME = "sidewalk"
 CONFIG_DIR = Path(__file__).parent / "conf"  # BenchMARL's config layout: conf/task/sidewalk/<task>.yaml
 TASK_CONFIG_KEYS = ("domain", "noise", "env", "reward", "state")
-_CORES = {"discrete": DiscreteSidewalkEnv, "continuous": ContinuousSidewalkEnv}
 OBSERVATION_KEY = ("agents", "observation")
 
 
@@ -69,17 +67,18 @@ def make_core(config: dict[str, Any], num_envs: int, seed: int | None, device: A
     if unknown:
         raise ValueError(f"sidewalk task config: unknown key(s) {unknown}; valid: {list(TASK_CONFIG_KEYS)}")
     domain = config["domain"]
-    if domain not in _CORES:
-        raise ValueError(f"sidewalk task config: domain={domain!r} is not valid; valid: {list(_CORES)}")
+    if domain not in DOMAINS:
+        raise ValueError(f"sidewalk task config: domain={domain!r} is not valid; valid: {list(DOMAINS)}")
     reward = {"c_progress": SELFPLAY_PROGRESS[domain], **(config.get("reward") or {})}
-    return _CORES[domain](
+    return DOMAINS[domain](
         num_envs, device=device, seed=seed, noise=float(config.get("noise", 0.0)), rewards=RewardParams(**reward),
         **(config.get("env") or {}),
     )
 
 
 class SidewalkTaskClass(TaskClass):
-    """A sidewalk task for BenchMARL: its config (``TASK_CONFIG_KEYS``) names the domain, env, noise and reward."""
+    """A sidewalk task for BenchMARL: its config (``TASK_CONFIG_KEYS``) names the domain, env, noise and reward, and
+    whether BenchMARL gets the root state."""
 
     def get_env_fun(
         self, num_envs: int, continuous_actions: bool, seed: int | None, device: Any
