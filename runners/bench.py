@@ -35,8 +35,8 @@ after another, TRPO continuous and DQN grid: ``--setups``, ``--replicas``, ``--i
 default), ``image_ppo`` (seconds per iteration of grid IPPO and MAPPO at their image settings beside the vector
 settings, interleaved in one process; not run by default), ``benchmarl`` (BenchMARL's algorithms at their defaults on
 the sidewalk's BenchMARL tasks, final team success on 256 fresh worlds, a resumable table: ``--bm-algorithms``,
-``--bm-tasks``, ``--bm-seeds``, ``--bm-frames``, ``--bm-out``, ``--bm-grid-observation``; docs/guide/benchmarl.md; not
-run by default). Flags after the sections that are not the ones below go
+``--bm-tasks``, ``--bm-seeds``, ``--bm-frames``, ``--bm-out``, ``--bm-grid-observation``, ``--bm-no-state``;
+docs/guide/benchmarl.md; not run by default). Flags after the sections that are not the ones below go
 to the sections that take flags of their own (``learners``: ``--opponent``, ``--frames``, ``--seeds``,
 ``--setups``, ``--learners``, ``--noise``, ``--eval-episodes``; see ``python -m sidewalk.bench.learners -h``).
 A section module has ``run(**kwargs) -> list[dict]``; it may add ``parse_options(argv) -> kwargs`` (its own flags,

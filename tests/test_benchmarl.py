@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import torch
 from torchrl.envs import Compose, TransformedEnv
@@ -142,3 +143,26 @@ def test_the_comparison_table_writes_a_row_per_run_and_skips_finished_runs(tmp_p
     monkeypatch.setattr(benchmarl_tasks, "train_and_evaluate", no_training)
     assert benchmarl_tasks.run(algorithms=["mappo"], tasks=["zipper_continuous"], seeds=[0], frames=6000,
                                out=str(tmp_path), eval_episodes=4) == rows
+    assert benchmarl_tasks.parse_options(["--bm-no-state"])["state"] is False
+
+
+def test_the_comparison_table_keeps_runs_without_the_state_apart(tmp_path, monkeypatch):
+    from sidewalk.bench import benchmarl_tasks
+
+    # A table written before the state column: its runs saw the state, and a run without it is a new row.
+    old = {"algorithm": "mappo", "task": "zipper_continuous", "observation": "vector", "seed": 0, "frames": 6000,
+           "wall_s": 1.0, "team_success": 1.0, "deadlock": 0.0, "agent_success": 1.0, "team_success_sampled": 1.0}
+    pd.DataFrame([old]).to_csv(tmp_path / "benchmarl.csv", index=False)
+    seen = []
+
+    def fake_run(algorithm, task, seed, frames, out, eval_episodes, grid_observation, state):
+        seen.append(state)
+        return {**old, "state": state, "team_success": 0.5}
+
+    monkeypatch.setattr(benchmarl_tasks, "train_and_evaluate", fake_run)
+    for state in (True, False):
+        rows = benchmarl_tasks.run(algorithms=["mappo"], tasks=["zipper_continuous"], seeds=[0], frames=6000,
+                                   out=str(tmp_path), eval_episodes=4, state=state)
+    assert seen == [False]
+    assert sorted((row["state"], row["team_success"]) for row in rows) == [(False, 0.5), (True, 1.0)]
+    assert "| mappo | zipper_continuous | vector | no | 1 |" in benchmarl_tasks.format_rows(rows)

@@ -5,9 +5,10 @@ in each of 256 fresh worlds (``sidewalk.evaluate``, the evaluation seed stream `
 
     python runners/bench.py benchmarl                                         # the table in docs/guide/benchmarl.md
     python runners/bench.py benchmarl --bm-algorithms mappo --bm-tasks sidewalk_continuous --bm-seeds 0
+    python runners/bench.py benchmarl --bm-algorithms mappo --bm-tasks sidewalk_continuous --bm-no-state
     python -m sidewalk.bench.benchmarl_tasks --bm-out results/benchmarl       # the same, as a module
 
-Each finished run is one row of ``<out>/benchmarl.csv`` (algorithm, task, observation, seed, frames, wall-clock,
+Each finished run is one row of ``<out>/benchmarl.csv`` (algorithm, task, observation, state, seed, frames, wall-clock,
 final team success greedy, deadlock, agent success, team success with sampled actions), written whole and renamed
 after every run; a run already in it is skipped, so an interrupted table resumes where it stopped. BenchMARL's own logs and checkpoints go to ``<out>/runs``.
 """
@@ -33,7 +34,7 @@ ALGORITHM_CONFIGS = {
     "mappo": "MappoConfig", "ippo": "IppoConfig", "masac": "MasacConfig", "isac": "IsacConfig",
     "maddpg": "MaddpgConfig", "iddpg": "IddpgConfig", "iql": "IqlConfig", "vdn": "VdnConfig", "qmix": "QmixConfig",
 }
-COLUMNS = ["algorithm", "task", "observation", "seed", "frames", "wall_s", "team_success", "deadlock", "agent_success",
+COLUMNS = ["algorithm", "task", "observation", "state", "seed", "frames", "wall_s", "team_success", "deadlock", "agent_success",
            "team_success_sampled"]
 
 
@@ -47,6 +48,9 @@ def parse_options(argv: list[str]) -> dict[str, Any]:
     parser.add_argument("--bm-eval-episodes", type=int, default=256)
     parser.add_argument("--bm-grid-observation", choices=("image", "vector"), default="image",
                         help="what the grid tasks' agents see: images (BenchMARL's CNN) or vectors (its MLP)")
+    parser.add_argument("--bm-no-state", action="store_true",
+                        help="withhold the tasks' root state (task config state: false): critics and mixers read the "
+                             "agents' observations")
     args, _ = parser.parse_known_args(argv)
     from sidewalk.interop.benchmarl import SidewalkTask
 
@@ -58,7 +62,7 @@ def parse_options(argv: list[str]) -> dict[str, Any]:
         parser.error("--bm-frames and --bm-eval-episodes must be positive")
     return {"algorithms": args.bm_algorithms, "tasks": args.bm_tasks, "seeds": args.bm_seeds,
             "frames": args.bm_frames, "out": args.bm_out, "eval_episodes": args.bm_eval_episodes,
-            "grid_observation": args.bm_grid_observation}
+            "grid_observation": args.bm_grid_observation, "state": not args.bm_no_state}
 
 
 def planned_runs(algorithms: list[str] | None, tasks: list[str] | None, seeds: list[int]) -> list[tuple[str, str, int]]:
@@ -75,7 +79,7 @@ def planned_runs(algorithms: list[str] | None, tasks: list[str] | None, seeds: l
 
 
 def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, out: Path, eval_episodes: int,
-                       grid_observation: str = "image") -> dict[str, Any]:
+                       grid_observation: str = "image", state: bool = True) -> dict[str, Any]:
     """One BenchMARL run at its defaults for ``frames`` frames, then our evaluation of its greedy policy."""
     from benchmarl import algorithms
     from benchmarl.experiment import Experiment, ExperimentConfig
@@ -89,6 +93,7 @@ def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, o
     task = SidewalkTask[task_name.upper()].get_from_yaml()
     if task.config["domain"] == "discrete":
         task.config["env"]["observation"] = grid_observation
+    task.config["state"] = state
     config = ExperimentConfig.get_from_yaml()
     config.max_n_frames = frames
     config.loggers, config.render, config.evaluation = ["csv"], False, False
@@ -111,8 +116,9 @@ def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, o
     # its sampling succeeds (and the other way round).
     sampled = evaluate(env, _Sampling(experiment.policy), seed=seed + EVAL_SEED_OFFSET, deterministic=False)
     observation = "image" if images else "vector"
-    torch.save(experiment.policy.state_dict(), out / "runs" / f"{algorithm}_{task_name}_{observation}_seed{seed}.pt")
-    return {"algorithm": algorithm, "task": task_name, "observation": observation, "seed": seed,
+    name = f"{algorithm}_{task_name}_{observation}{'' if state else '_nostate'}_seed{seed}.pt"
+    torch.save(experiment.policy.state_dict(), out / "runs" / name)
+    return {"algorithm": algorithm, "task": task_name, "observation": observation, "state": state, "seed": seed,
             "frames": experiment.total_frames, "wall_s": round(wall_s, 1), "team_success": metrics["team/success_rate"],
             "deadlock": metrics["deadlock_rate"], "agent_success": metrics["success_rate"],
             "team_success_sampled": sampled["team/success_rate"]}
@@ -132,7 +138,7 @@ class _Sampling(TensorDictModuleBase):
 
 def run(algorithms: list[str] | None = None, tasks: list[str] | None = None, seeds: list[int] = (0, 1, 2),
         frames: int = 240_000, out: str = "results/benchmarl", eval_episodes: int = 256,
-        grid_observation: str = "image") -> list[dict[str, Any]]:
+        grid_observation: str = "image", state: bool = True) -> list[dict[str, Any]]:
     from sidewalk.run_folder import atomic_write
 
     torch.set_num_threads(1)
@@ -140,14 +146,17 @@ def run(algorithms: list[str] | None = None, tasks: list[str] | None = None, see
     out_dir.mkdir(parents=True, exist_ok=True)
     table_path = out_dir / "benchmarl.csv"
     table = pd.read_csv(table_path) if table_path.exists() else pd.DataFrame(columns=COLUMNS)
+    if "state" not in table:  # a table from before the option: every run saw the state
+        table.insert(COLUMNS.index("state"), "state", True)
     for algorithm, task, seed in planned_runs(algorithms, tasks, list(seeds)):
         observation = grid_observation if task.endswith("discrete") else "vector"
         same = (table.algorithm == algorithm) & (table.task == task) & (table.seed == seed) & (
-            table.observation == observation)
+            table.observation == observation) & (table.state == state)
         if (table[same].frames >= frames).any():
             continue
-        print(f"benchmarl: {algorithm} on sidewalk/{task} ({observation}), seed {seed}, {frames:,} frames", flush=True)
-        row = train_and_evaluate(algorithm, task, seed, frames, out_dir, eval_episodes, grid_observation)
+        print(f"benchmarl: {algorithm} on sidewalk/{task} ({observation}{'' if state else ', no state'}), seed {seed}, "
+              f"{frames:,} frames", flush=True)
+        row = train_and_evaluate(algorithm, task, seed, frames, out_dir, eval_episodes, grid_observation, state)
         table = pd.concat([table[~same], pd.DataFrame([row])], ignore_index=True)
         atomic_write(table_path, lambda tmp, rows=table: rows.to_csv(tmp, index=False))
     return table.to_dict("records")
@@ -158,11 +167,12 @@ def format_rows(rows: list[dict[str, Any]]) -> str:
     if not rows:
         return "(no runs)"
     table = pd.DataFrame(rows)
-    lines = [("| algorithm | task | observation | seeds | frames | wall-clock (s, mean) | team success, greedy (per seed) "
-              "| team success, sampled (mean) | deadlock (mean) |"), "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for (algorithm, task, observation), group in table.groupby(["algorithm", "task", "observation"], sort=False):
+    lines = [("| algorithm | task | observation | state | seeds | frames | wall-clock (s, mean) | team success, greedy (per seed) "
+              "| team success, sampled (mean) | deadlock (mean) |"), "|" + " --- |" * 10]
+    for (algorithm, task, observation, state), group in table.groupby(["algorithm", "task", "observation", "state"],
+                                                                       sort=False):
         per_seed = ", ".join(f"{value:.2f}" for value in group.sort_values("seed").team_success)
-        lines.append(f"| {algorithm} | {task} | {observation} | {len(group)} | {int(group.frames.mean()):,} "
+        lines.append(f"| {algorithm} | {task} | {observation} | {'yes' if state else 'no'} | {len(group)} | {int(group.frames.mean()):,} "
                      f"| {group.wall_s.mean():.0f} | {group.team_success.mean():.2f} ({per_seed}) "
                      f"| {group.team_success_sampled.mean():.2f} | {group.deadlock.mean():.2f} |")
     return "\n".join(lines)
