@@ -8,9 +8,10 @@ in each of 256 fresh worlds (``sidewalk.evaluate``, the evaluation seed stream `
     python runners/bench.py benchmarl --bm-algorithms mappo --bm-tasks sidewalk_continuous --bm-no-state
     python -m sidewalk.bench.benchmarl_tasks --bm-out results/benchmarl       # the same, as a module
 
-Each finished run is one row of ``<out>/benchmarl.csv`` (algorithm, task, observation, state, seed, frames, wall-clock,
-final team success greedy, deadlock, agent success, team success with sampled actions), written whole and renamed
-after every run; a run already in it is skipped, so an interrupted table resumes where it stopped. BenchMARL's own logs and checkpoints go to ``<out>/runs``.
+Each finished run is one row of ``<out>/benchmarl.csv`` (algorithm, task, observation, state, seed, frames,
+wall-clock, final team success greedy, deadlock, agent success, team success with sampled actions), written whole and
+renamed after every run; a run already in it is skipped, so an interrupted table resumes where it stopped.
+BenchMARL's own logs and checkpoints go to ``<out>/runs``.
 """
 
 from __future__ import annotations
@@ -34,8 +35,8 @@ ALGORITHM_CONFIGS = {
     "mappo": "MappoConfig", "ippo": "IppoConfig", "masac": "MasacConfig", "isac": "IsacConfig",
     "maddpg": "MaddpgConfig", "iddpg": "IddpgConfig", "iql": "IqlConfig", "vdn": "VdnConfig", "qmix": "QmixConfig",
 }
-COLUMNS = ["algorithm", "task", "observation", "state", "seed", "frames", "wall_s", "team_success", "deadlock", "agent_success",
-           "team_success_sampled"]
+COLUMNS = ["algorithm", "task", "observation", "state", "seed", "frames", "wall_s", "team_success", "deadlock",
+           "agent_success", "team_success_sampled"]
 
 
 def parse_options(argv: list[str]) -> dict[str, Any]:
@@ -146,8 +147,6 @@ def run(algorithms: list[str] | None = None, tasks: list[str] | None = None, see
     out_dir.mkdir(parents=True, exist_ok=True)
     table_path = out_dir / "benchmarl.csv"
     table = pd.read_csv(table_path) if table_path.exists() else pd.DataFrame(columns=COLUMNS)
-    if "state" not in table:  # a table from before the option: every run saw the state
-        table.insert(COLUMNS.index("state"), "state", True)
     for algorithm, task, seed in planned_runs(algorithms, tasks, list(seeds)):
         observation = grid_observation if task.endswith("discrete") else "vector"
         same = (table.algorithm == algorithm) & (table.task == task) & (table.seed == seed) & (
@@ -167,13 +166,15 @@ def format_rows(rows: list[dict[str, Any]]) -> str:
     if not rows:
         return "(no runs)"
     table = pd.DataFrame(rows)
-    lines = [("| algorithm | task | observation | state | seeds | frames | wall-clock (s, mean) | team success, greedy (per seed) "
-              "| team success, sampled (mean) | deadlock (mean) |"), "|" + " --- |" * 10]
-    for (algorithm, task, observation, state), group in table.groupby(["algorithm", "task", "observation", "state"],
-                                                                       sort=False):
+    header = ("algorithm", "task", "observation", "state", "seeds", "frames", "wall-clock (s, mean)",
+              "team success, greedy (per seed)", "team success, sampled (mean)", "deadlock (mean)")
+    lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
+    setting = ["algorithm", "task", "observation", "state"]
+    for (algorithm, task, observation, state), group in table.groupby(setting, sort=False):
         per_seed = ", ".join(f"{value:.2f}" for value in group.sort_values("seed").team_success)
-        lines.append(f"| {algorithm} | {task} | {observation} | {'yes' if state else 'no'} | {len(group)} | {int(group.frames.mean()):,} "
-                     f"| {group.wall_s.mean():.0f} | {group.team_success.mean():.2f} ({per_seed}) "
+        lines.append(f"| {algorithm} | {task} | {observation} | {'yes' if state else 'no'} | {len(group)} "
+                     f"| {int(group.frames.mean()):,} | {group.wall_s.mean():.0f} "
+                     f"| {group.team_success.mean():.2f} ({per_seed}) "
                      f"| {group.team_success_sampled.mean():.2f} | {group.deadlock.mean():.2f} |")
     return "\n".join(lines)
 

@@ -144,7 +144,8 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         layout, device, n = self.layout, self.device, self.n_agents
         self.rows, self.cols = layout.rows, layout.cols
         # global_state's scale of a cell: the grid's extent, at least 1 (a one-row grid).
-        self._cell_extent = torch.tensor([self.rows - 1, self.cols - 1], dtype=torch.float32, device=device).clamp(min=1)
+        extent = torch.tensor([self.rows - 1, self.cols - 1], dtype=torch.float32, device=device)
+        self._cell_extent = extent.clamp(min=1)
         self._move_row = torch.tensor([dr for dr, _ in MOVES], dtype=torch.long, device=device)
         self._move_col = torch.tensor([dc for _, dc in MOVES], dtype=torch.long, device=device)
         self._blocked = layout.blocked_mask(device).reshape(-1)

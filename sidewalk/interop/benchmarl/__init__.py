@@ -113,9 +113,9 @@ class SidewalkTaskClass(TaskClass):
 
     def info_spec(self, env: EnvBase) -> Composite:
         spec = env.full_observation_spec_unbatched
-        return Composite(
-            {group: Composite(info=spec[group, "info"].clone(), shape=spec[group].shape) for group in self.group_map(env)}
-        )
+        return Composite({
+            group: Composite(info=spec[group, "info"].clone(), shape=spec[group].shape) for group in self.group_map(env)
+        })
 
     def state_spec(self, env: EnvBase) -> Composite | None:
         # state: false leaves BenchMARL's critics and mixers on every agent's observation, as for VMAS's tasks.
