@@ -28,9 +28,9 @@ from sidewalk.report import (
     load_run,
     write_report,
 )
-from sidewalk.report.claims import Stat, check_claims, faster
+from sidewalk.report.claims import TIE, above_zero, below_zero, check_claims
 from sidewalk.report.conditions import condition_config
-from sidewalk.stats import interval_estimate, iqm, mean_se
+from sidewalk.stats import difference_interval, interval_estimate, iqm, mean_se
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -435,9 +435,16 @@ def test_learning_speed_is_read_off_the_training_curve_seed_by_seed(tmp_path):
     claim_runs(tmp_path / "b", "fig8", "reward", {"explicit": tied, "implicit": tied})
     assert verdicts(tmp_path / "b")["explicit cooperative reward learns better than implicit (continuous)"] == (
         "not reproduced")  # the same end, reached as soon
-    # A difference within two standard errors of the difference is a tie; one seed has no SE.
-    assert faster(Stat(1000.0, 100.0), Stat(1500.0, 100.0)) and not faster(Stat(1000.0, 200.0), Stat(1500.0, 200.0))
-    assert faster(Stat(1000.0, math.nan), Stat(1001.0, math.nan)) and not faster(Stat(math.nan, 0), Stat(1.0, 0))
+    # Faster when the 95 % interval of the difference lies below 0: not where the seeds overlap, nor with one seed.
+    assert below_zero(difference_interval([900.0, 1000.0, 1100.0], [1400.0, 1500.0, 1600.0]))
+    assert not below_zero(difference_interval([500.0, 1000.0, 1500.0], [1000.0, 1500.0, 2000.0]))
+    assert not below_zero(difference_interval([1000.0], [1001.0, 1002.0])) and not below_zero(
+        difference_interval([math.nan] * 3, [1.0, 2.0, 3.0])
+    )
+    # A separated difference smaller than TIE is still a tie.
+    assert above_zero(difference_interval([0.81] * 3, [0.8] * 3)) and not above_zero(
+        difference_interval([0.81] * 3, [0.8] * 3), TIE
+    )
 
 
 def test_report_holds_the_claims_and_places_the_preamble(tmp_path):

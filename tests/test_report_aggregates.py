@@ -1,7 +1,8 @@
 """The report's aggregates over a paper figure's panels (rliable's way): the learner's final values of the conditions
-at one rank of every panel pooled into one row, against hand-computed means and IQMs; conditions at a rank that not
-every panel has left out and named; the numbers in report.csv; Fig. 5's performance profile drawn, embedded and its
-points in curves.csv; and a figure of one panel aggregated over its one task."""
+at one rank of every panel pooled into one row, against hand-computed means, IQMs and optimality gaps; the probability
+of improvement of every ordered pair of settings against hand counts; conditions at a rank that not every panel has
+left out and named; the numbers in report.csv; Fig. 5's performance profile drawn, embedded and its points in
+curves.csv; and a figure of one panel aggregated over its one task."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from omegaconf import OmegaConf
 
 from sidewalk.config import register_schemas
 from sidewalk.report import Settings, write_report
-from sidewalk.stats import interval_estimate
+from sidewalk.stats import interval_estimate, probability_of_improvement
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -104,14 +105,36 @@ def fig5_section(report: str) -> str:
     return report.split("### Fig. 5")[1].split("### Fig. 6")[0]
 
 
+def table_rows(section: str, header: str) -> list[list[str]]:
+    """The cells of each row of the table of ``section`` whose header line starts with ``header``."""
+    lines = section.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(header))
+    rows = []
+    for line in lines[start + 2 :]:
+        if not line.startswith("|"):
+            break
+        rows.append([cell.strip() for cell in line.strip("|").split("|")])
+    return rows
+
+
 def aggregate_rows(report: str) -> dict[str, list[str]]:
     """The aggregate table's rows under Fig. 5, cells by the setting's label."""
-    rows = [line for line in fig5_section(report).splitlines() if line.startswith("| ")]
-    start = next(i for i, line in enumerate(rows) if line.startswith("| setting |"))
-    return {
-        cells[0]: cells
-        for cells in ([c.strip() for c in line.strip("|").split("|")] for line in rows[start + 2 :])
-    }
+    return {cells[0]: cells for cells in table_rows(fig5_section(report), "| setting |")}
+
+
+def stratified(grid: list[float], plane: list[float]) -> np.ndarray:
+    """A setting's (runs, tasks) scores: the grid's runs and the plane's, the shorter column padded with NaN."""
+    scores = np.full((max(len(grid), len(plane)), 2), np.nan)
+    scores[: len(grid), 0], scores[: len(plane), 1] = grid, plane
+    return scores
+
+
+# Fig. 5's settings as the aggregate pools them: random, the planners (without the all-shaped PRM), centralized.
+FIG5_SETTINGS = {
+    "random": stratified(RANDOM_RUNS[:4], RANDOM_RUNS[4:]),
+    "dijkstra / prm, shaped [0]": stratified([0.7] * 4, [0.8] * 5),
+    "centralized": stratified([1.0] * 4, [0.5] * 5),
+}
 
 
 def test_the_aggregate_pools_the_runs_at_one_rank_of_every_panel(fig5_report):
@@ -145,7 +168,8 @@ def test_report_csv_carries_the_aggregate_numbers(fig5_report):
     numbers = pd.read_csv(fig5_report.out / "report.csv")
     rows = numbers[(numbers.section == f"{FIG5}/aggregate") & (numbers.condition == "random")]
     by_statistic = dict(zip(rows.statistic, rows.value))
-    assert set(by_statistic) == {"tasks", "mean", "se", "iqm", "ci_low", "ci_high"}
+    gap_statistics = {"optimality_gap", "optimality_gap_ci_low", "optimality_gap_ci_high"}
+    assert set(by_statistic) == {"tasks", "mean", "se", "iqm", "ci_low", "ci_high", *gap_statistics}
     assert (by_statistic["tasks"], by_statistic["mean"], by_statistic["iqm"]) == (
         2,
         pytest.approx(4 / 9),
@@ -153,12 +177,18 @@ def test_report_csv_carries_the_aggregate_numbers(fig5_report):
     )
     assert by_statistic["se"] == pytest.approx(np.std(RANDOM_RUNS, ddof=1) / 3)
     # The CI is the stratified bootstrap of the two panels' runs (4 and 5), at the report's settings.
-    stratified = np.full((5, 2), np.nan)
-    stratified[:4, 0], stratified[:, 1] = RANDOM_RUNS[:4], RANDOM_RUNS[4:]
-    interval = interval_estimate(stratified, "iqm", n_resamples=SETTINGS.n_resamples, seed=SETTINGS.seed)
+    scores = FIG5_SETTINGS["random"]
+    interval = interval_estimate(scores, "iqm", n_resamples=SETTINGS.n_resamples, seed=SETTINGS.seed)
     assert (by_statistic["ci_low"], by_statistic["ci_high"]) == (
         pytest.approx(interval.low),
         pytest.approx(interval.high),
+    )
+    # The optimality gap: every run's shortfall below 1, 0.9 + 0.8 + 0.7 + 0.1 + 1.0 + 0.6 + 0.5 + 0.4 + 0.0 over 9.
+    gap = interval_estimate(scores, "optimality_gap", n_resamples=SETTINGS.n_resamples, seed=SETTINGS.seed)
+    assert by_statistic["optimality_gap"] == pytest.approx(5.0 / 9)
+    assert (by_statistic["optimality_gap_ci_low"], by_statistic["optimality_gap_ci_high"]) == (
+        pytest.approx(gap.low),
+        pytest.approx(gap.high),
     )
     assert (
         set(rows.seeds) == {9}
@@ -208,6 +238,72 @@ def test_a_figure_of_one_panel_is_aggregated_over_its_one_task(fig5_runs, tmp_pa
     ]
     pooled = numbers[(numbers.section == f"{FIG5}/aggregate") & (numbers.condition == "random")]
     # One task: the aggregate is the condition's own final value, to the last bit (the same bootstrap and seed).
-    assert dict(zip(pooled.statistic, pooled.value)) == {"tasks": 1, **dict(zip(own.statistic, own.value))}
+    by_statistic = dict(zip(pooled.statistic, pooled.value))
+    gap = {name: by_statistic.pop(name) for name in list(by_statistic) if name.startswith("optimality_gap")}
+    assert by_statistic == {"tasks": 1, **dict(zip(own.statistic, own.value))}
+    assert gap["optimality_gap"] == pytest.approx(1 - 0.375)  # the grid's random runs: 0.1, 0.2, 0.3, 0.9
     assert dict(zip(own.statistic, own.value))["iqm"] == pytest.approx(0.25)  # 0.1 and 0.9 trimmed
     assert (result.out / "figures" / "fig5_performance_profile.png").exists()
+
+
+def test_the_aggregate_table_shows_each_setting_s_optimality_gap(fig5_report):
+    section = fig5_section(fig5_report.report_md.read_text())
+    assert next(line for line in section.splitlines() if line.startswith("| setting |")).endswith(
+        "| IQM [95% CI] | optimality gap [95% CI] |"
+    )
+    table = aggregate_rows(fig5_report.report_md.read_text())
+    # Shortfalls below 1: random 5/9; the planners (4 × 0.3 + 5 × 0.2) / 9; centralized (4 × 0 + 5 × 0.5) / 9.
+    for label, gap in (("random", 5 / 9), ("dijkstra / prm, shaped [0]", 2.2 / 9), ("centralized", 2.5 / 9)):
+        interval = interval_estimate(
+            FIG5_SETTINGS[label], "optimality_gap", n_resamples=SETTINGS.n_resamples, seed=SETTINGS.seed
+        )
+        assert table[label][8] == f"{gap:.3f} [{interval.low:.3f}, {interval.high:.3f}]"
+    assert "mean shortfall of final success_rate below 1" in section
+    # Fig. 7's collision rate is better low: no gap to 1 to show.
+    fig7 = fig5_report.report_md.read_text().split("### Fig. 7")[1].split("### Fig. 8")[0]
+    assert "optimality gap" not in fig7 and "| setting |" in fig7
+
+
+def test_every_ordered_pair_of_settings_gets_its_probability_of_improvement(fig5_report):
+    section = fig5_section(fig5_report.report_md.read_text())
+    rows = table_rows(section, "| A | B | P(A > B) [95% CI] |")
+    planner = "dijkstra / prm, shaped [0]"
+    # Pairs won over pairs per panel, averaged over the two panels: random's 0.9 beats the grid's four 0.7s (4 of
+    # 16) and its 1.0 the plane's five 0.8s (5 of 25); against centralized, nothing beats 1.0 in the grid, and in the
+    # plane 0.6 and 1.0 beat five 0.5s and 0.5 ties them (12.5 of 25); the planners lose the grid, win the plane.
+    expected = {
+        ("random", planner): (0.25 + 0.2) / 2,
+        ("random", "centralized"): (0.0 + 0.5) / 2,
+        (planner, "centralized"): (0.0 + 1.0) / 2,
+    }
+    expected |= {(b, a): 1 - p for (a, b), p in expected.items()}
+    assert [(row[0], row[1]) for row in rows] == [
+        (a, b) for a in FIG5_SETTINGS for b in FIG5_SETTINGS if a != b
+    ]  # every ordered pair, in the table's order
+    numbers = pd.read_csv(fig5_report.out / "report.csv")
+    logged = numbers[numbers.section == f"{FIG5}/probability_of_improvement"]
+    for a, b, cell, words in rows:
+        first, second = (a, b) if list(FIG5_SETTINGS).index(a) < list(FIG5_SETTINGS).index(b) else (b, a)
+        forward = probability_of_improvement(
+            FIG5_SETTINGS[first], FIG5_SETTINGS[second], n_resamples=SETTINGS.n_resamples, seed=SETTINGS.seed
+        )
+        # The reverse pair is the same bootstrap mirrored: P(B > A) = 1 − P(A > B) in every resample.
+        low, high = (forward.low, forward.high) if first == a else (1 - forward.high, 1 - forward.low)
+        assert cell == f"{expected[a, b]:.3f} [{low:.3f}, {high:.3f}]"
+        assert words == ("separates at 95%" if low > 0.5 or high < 0.5 else "does not separate at 95%")
+        row = logged[logged.condition == f"{a} > {b}"]
+        values = dict(zip(row.statistic, row.value))
+        assert values["probability_of_improvement"] == pytest.approx(expected[a, b])
+        assert (
+            values["probability_of_improvement_ci_low"],
+            values["probability_of_improvement_ci_high"],
+        ) == (
+            pytest.approx(low),
+            pytest.approx(high),
+        )
+        assert set(row.note) == {words} and set(row.seeds) == {18}
+    # The settings differ as the runs show: random loses to centralized for sure, not to the planners; the planners
+    # and centralized split the panels, P = 0.5 in every resample.
+    verdicts = {(row[0], row[1]): row[3] for row in rows}
+    assert verdicts["random", "centralized"] == "separates at 95%"
+    assert verdicts["random", planner] == verdicts[planner, "centralized"] == "does not separate at 95%"

@@ -1,6 +1,8 @@
 """Performance profiles (``sidewalk.stats.performance_profile``) against hand-computed fractions: strictly above each
 threshold as rliable counts, pooled over tasks with NaN runs dropped, and a stratified-bootstrap band that a seed
-fixes and that keeps each task's number of runs."""
+fixes and that keeps each task's number of runs. The comparisons of methods against hand counts and rliable: the
+optimality gap, the probability of improvement P(X > Y) with its stratified bootstrap of both samples, the difference
+of two independent samples, and whether an interval separates a comparison."""
 
 from __future__ import annotations
 
@@ -10,7 +12,17 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from sidewalk.stats import fraction_above, performance_profile
+from sidewalk.stats import (
+    ONE_RUN_NOTE,
+    difference_interval,
+    fraction_above,
+    interval_estimate,
+    optimality_gap,
+    performance_profile,
+    probability_of_improvement,
+    separates,
+    separation_text,
+)
 
 
 def test_the_profile_counts_the_runs_strictly_above_each_threshold():
@@ -79,3 +91,115 @@ def test_one_run_has_no_band_and_bad_arguments_are_refused():
         performance_profile([0.1, 0.2], [0.5], confidence=1.0)
     with pytest.raises(ValueError, match="taus"):
         performance_profile([0.1, 0.2], [])
+
+
+# ---- comparisons -----------------------------------------------------------------------------------------------------
+
+
+def test_the_optimality_gap_is_the_mean_shortfall_below_the_threshold():
+    assert optimality_gap([1.0, 1.0, 0.5, 0.0]) == pytest.approx(0.375)  # (0 + 0 + 0.5 + 1) / 4
+    assert optimality_gap([1.0, 0.9, 0.4], threshold=0.5) == pytest.approx(0.1 / 3)  # scores above it count 0
+    # Pooled over tasks, the NaN padding dropped: shortfalls 0.8, 0.5 | 0.0, 0.3, 0.2 -> 1.8 / 5.
+    assert optimality_gap([[0.2, 1.0], [0.5, 0.7], [np.nan, 0.8]]) == pytest.approx(1.8 / 5)
+    gap = interval_estimate([1.0, 1.0, 0.5, 0.0], "optimality_gap", n_resamples=1000, seed=2)
+    assert gap.point == pytest.approx(0.375) and gap.low < gap.point < gap.high
+    assert 0.0 <= gap.low and gap.high <= 1.0  # every resample's gap is a mean shortfall of rates in [0, 1]
+    assert interval_estimate([1.0, 1.0, 0.5, 0.0], "optimality_gap", n_resamples=1000, seed=2) == gap
+    metrics = pytest.importorskip("rliable.metrics")
+    scores = np.random.default_rng(5).uniform(0.0, 1.2, (7, 3))
+    assert optimality_gap(scores) == pytest.approx(metrics.aggregate_optimality_gap(scores))
+    with pytest.raises(ValueError, match="threshold=nan"):
+        optimality_gap([0.5], threshold=math.nan)
+
+
+def pairs_above(x, y) -> float:
+    """P(X > Y) of one task counted pair by pair: 1 where x_i > y_j, 0.5 where equal."""
+    return np.mean([[1.0 if a > b else 0.5 if a == b else 0.0 for b in y] for a in x])
+
+
+def test_the_probability_of_improvement_counts_the_pairs_ties_half():
+    x, y = [1.0, 2.0, 3.0], [2.0, 2.0, 0.0]
+    # x = 1 beats only 0; x = 2 ties both 2s and beats 0; x = 3 beats all: (1 + 2 + 3) / 9.
+    assert probability_of_improvement(x, y, n_resamples=200).point == pytest.approx(6 / 9)
+    # P(Y > X) = 1 − P(X > Y): a tie counts half each way.
+    assert probability_of_improvement(y, x, n_resamples=200).point == pytest.approx(3 / 9)
+    same = probability_of_improvement(x, x, n_resamples=200)
+    assert same.point == 0.5 and same.low < 0.5 < same.high and not separates(same, 0.5)
+    # Two tasks, the second NaN-padded: the mean of the tasks' probabilities, each over its own runs.
+    x2 = np.array([[0.1, 0.9], [0.5, 0.3], [0.7, np.nan]])
+    y2 = np.array([[0.4, 0.3], [0.4, 0.8], [0.6, 0.1]])
+    expected = (pairs_above([0.1, 0.5, 0.7], [0.4, 0.4, 0.6]) + pairs_above([0.9, 0.3], [0.3, 0.8, 0.1])) / 2
+    assert probability_of_improvement(x2, y2, n_resamples=200).point == pytest.approx(expected)
+    metrics = pytest.importorskip("rliable.metrics")
+    rng = np.random.default_rng(6)
+    xs, ys = rng.integers(0, 4, (6, 3)) / 4, rng.integers(0, 4, (5, 3)) / 4  # ties aplenty
+    assert probability_of_improvement(xs, ys, n_resamples=200).point == pytest.approx(
+        metrics.probability_of_improvement(xs, ys)
+    )
+
+
+def test_the_probability_of_improvement_resamples_both_samples_within_each_task():
+    rng = np.random.default_rng(8)
+    x, y = rng.normal(0.6, 0.2, (5, 2)), rng.normal(0.4, 0.2, (4, 2))
+    got = probability_of_improvement(x, y, n_resamples=500, seed=4)
+    # The same resampling by hand, pair by pair: x's and y's runs of each task resampled on their own.
+
+    def by_pairs(x0, x1, y0, y1, axis=-1):
+        return np.array(
+            [(pairs_above(*t0) + pairs_above(*t1)) / 2 for t0, t1 in zip(zip(x0, y0), zip(x1, y1))]
+        )
+
+    expected = scipy.stats.bootstrap(
+        (x[:, 0], x[:, 1], y[:, 0], y[:, 1]),
+        by_pairs,
+        n_resamples=500,
+        method="percentile",
+        paired=False,
+        vectorized=True,
+        rng=np.random.default_rng(4),
+    ).confidence_interval
+    assert (got.low, got.high) == (pytest.approx(expected.low), pytest.approx(expected.high))
+    assert probability_of_improvement(x, y, n_resamples=500, seed=4) == got  # a seed fixes the interval
+
+
+def test_a_clearly_better_sample_separates_and_one_run_has_no_interval():
+    better = probability_of_improvement([0.8, 0.9, 0.85, 0.95], [0.1, 0.3, 0.2, 0.25], n_resamples=500)
+    assert better.point == 1.0 and better.low > 0.5 and separates(better, 0.5)
+    assert separation_text(better, 0.5) == "separates at 95%"
+    one = probability_of_improvement([[0.9, 0.2], [np.nan, 0.4]], [[0.1, 0.3], [0.2, 0.5]], n_resamples=200)
+    assert one.point == pytest.approx((1.0 + 0.25) / 2) and math.isnan(one.low) and one.note == ONE_RUN_NOTE
+    assert not separates(one, 0.5) and separation_text(one, 0.5) == "no interval (1 run)"
+    with pytest.raises(ValueError, match="x has 2 tasks and y has 1"):
+        probability_of_improvement([[0.1, 0.2], [0.3, 0.4]], [0.1, 0.2])
+    with pytest.raises(ValueError, match="n_resamples=0"):
+        probability_of_improvement([0.1, 0.2], [0.1, 0.2], n_resamples=0)
+
+
+def test_the_difference_of_two_samples_is_an_independent_bootstrap():
+    apart = difference_interval([1.0, 1.0, 1.0], [0.0, 0.0, 0.0], n_resamples=200)
+    assert (apart.point, apart.low, apart.high) == (1.0, 1.0, 1.0) and separates(apart, 0.0)
+    equal = difference_interval([0.2, 0.5, 0.9], [0.2, 0.5, 0.9], n_resamples=500)
+    assert equal.point == 0.0 and equal.low < 0.0 < equal.high and not separates(equal, 0.0)
+    assert separation_text(equal, 0.0, confidence=0.9) == "does not separate at 90%"
+    a, b = [3.0, 4.0, 6.0, np.nan], [1.0, 2.0, 2.5]
+    got = difference_interval(a, b, "median", n_resamples=1000, seed=9)
+    expected = scipy.stats.bootstrap(
+        ([3.0, 4.0, 6.0], b),
+        lambda first, second, axis: np.median(first, axis=axis) - np.median(second, axis=axis),
+        n_resamples=1000,
+        method="percentile",
+        paired=False,
+        vectorized=True,
+        rng=np.random.default_rng(9),
+    ).confidence_interval
+    assert got.point == 2.0 and got.runs == 3  # the NaN dropped: medians 4 and 2
+    assert (got.low, got.high) == (pytest.approx(expected.low), pytest.approx(expected.high))
+    assert difference_interval(a, b, "median", n_resamples=1000, seed=9) == got
+    one = difference_interval([5.0], [1.0, 2.0])
+    assert one.point == 3.5 and math.isnan(one.high) and one.note == ONE_RUN_NOTE and not separates(one, 0.0)
+    with pytest.raises(ValueError, match=r"a must be a non-empty 1-d array.*\(2, 2\)"):
+        difference_interval([[1.0, 2.0], [3.0, 4.0]], [1.0, 2.0])
+    with pytest.raises(ValueError, match="statistic='mode'"):
+        difference_interval([1.0, 2.0], [1.0, 2.0], "mode")
+    with pytest.raises(ValueError, match="confidence=0.0"):
+        difference_interval([1.0, 2.0], [1.0, 2.0], confidence=0.0)

@@ -2,12 +2,16 @@
 Precipice", 2021): each panel is a *task* (a domain, say) and the conditions at one rank of every panel are one
 *compared setting* (``conditions.compared_settings``). A setting's row pools the learner's final values of its
 conditions: mean ± SE over every pooled run, and the IQM with a stratified-bootstrap interval (each panel's runs
-resampled on their own). Where the figure compares learners (``PaperFigure.profile``), a performance profile too:
-the fraction of the pooled runs scoring above each threshold, with its bootstrap band."""
+resampled on their own) and, for a rate whose target is 1 (``GAP_METRICS``), the optimality gap with its interval.
+After the table, the probability of improvement P(A > B) of every ordered pair of settings, with its interval and
+whether that separates them (excludes 0.5). Where the figure compares learners (``PaperFigure.profile``), a
+performance profile too: the fraction of the pooled runs scoring above each threshold, with its bootstrap band."""
 
 from __future__ import annotations
 
+import itertools
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,23 +28,44 @@ from sidewalk.report.conditions import (
     figure_panels,
 )
 from sidewalk.report.figures import COLOURS, CURVE_METRICS, _save
-from sidewalk.report.tables import Final, NumberLog, Settings, iqm_text, mean_se_text, summary_values
-from sidewalk.stats import Profile, interval_estimate, mean_se, performance_profile
+from sidewalk.report.tables import (
+    Final,
+    NumberLog,
+    Settings,
+    interval_text,
+    iqm_text,
+    mean_se_text,
+    summary_values,
+)
+from sidewalk.stats import (
+    Interval,
+    Profile,
+    interval_estimate,
+    mean_se,
+    performance_profile,
+    probability_of_improvement,
+    separation_text,
+)
 
 log = logging.getLogger(__name__)
 
 # The thresholds of a profile: rates lie in [0, 1], drawn in steps of 0.01.
 PROFILE_TAUS = np.linspace(0.0, 1.0, 101)
+# The metrics whose optimality gap (``stats.STATISTICS``, against 1) the table shows: rates where 1 is the target. A
+# collision rate's target is 0, and its gap from 0 would be its mean, already shown.
+GAP_METRICS = ("success_rate",)
+IMPROVEMENT_NULL = 0.5  # P(A > B) of two settings that do not differ
 
 
 @dataclass
 class Aggregate:
-    """A compared setting's learner scores, (runs, tasks) padded with NaN where a panel has fewer runs, and their
-    pooled final value."""
+    """A compared setting's learner scores, (runs, tasks) padded with NaN where a panel has fewer runs, their pooled
+    final value and, for a metric of ``GAP_METRICS``, their optimality gap (else None)."""
 
     setting: ComparedSetting
     scores: np.ndarray
     final: Final
+    gap: Interval | None = None
 
     @property
     def tasks(self) -> int:
@@ -73,30 +98,100 @@ def learner_scores(conditions: Sequence[Condition], metric: str) -> np.ndarray:
 
 def aggregate(setting: ComparedSetting, metric: str, settings: Settings) -> Aggregate:
     """``setting``'s learner scores of ``metric`` and their pooled final value (mean ± SE over all runs, IQM with its
-    stratified-bootstrap interval at ``settings``' confidence, resamples and seed)."""
+    stratified-bootstrap interval at ``settings``' confidence, resamples and seed), and their optimality gap with
+    the same bootstrap's interval where ``metric`` is one of ``GAP_METRICS``."""
     scores = learner_scores(setting.conditions, metric)
     mean, se, _ = mean_se(scores.ravel())
-    interval = interval_estimate(
-        scores, "iqm", confidence=settings.confidence, n_resamples=settings.n_resamples, seed=settings.seed
-    )
+    bootstrap = {
+        "confidence": settings.confidence,
+        "n_resamples": settings.n_resamples,
+        "seed": settings.seed,
+    }
+    interval = interval_estimate(scores, "iqm", **bootstrap)
+    gap = interval_estimate(scores, "optimality_gap", **bootstrap) if metric in GAP_METRICS else None
     final = Final(learner_of(setting), metric, scores.ravel(), float(mean), float(se), interval)
-    return Aggregate(setting, scores, final)
+    return Aggregate(setting, scores, final, gap)
 
 
 def aggregate_table(aggregates: Sequence[Aggregate], confidence: float) -> list[str]:
-    """Markdown rows: setting, conditions, learner, metric, tasks, runs, mean ± SE, IQM [CI]."""
+    """Markdown rows: setting, conditions, learner, metric, tasks, runs, mean ± SE, IQM [CI] and, where the
+    aggregates have one, the optimality gap [CI]."""
+    level = f"{confidence:.0%}"
+    gap = any(item.gap is not None for item in aggregates)
     lines = [
-        f"| setting | conditions | learner | metric | tasks | runs | mean ± SE | IQM [{confidence:.0%} CI] |",
-        "| --- | --- | --- | --- | ---: | ---: | --- | --- |",
+        f"| setting | conditions | learner | metric | tasks | runs | mean ± SE | IQM [{level} CI] |"
+        + (f" optimality gap [{level} CI] |" if gap else ""),
+        "| --- | --- | --- | --- | ---: | ---: | --- | --- |" + (" --- |" if gap else ""),
     ]
     for item in aggregates:
         final = item.final
         ids = ", ".join(condition.ident for condition in item.setting.conditions)
+        gap_cell = f" {interval_text(item.gap, final.metric) if item.gap else '–'} |" if gap else ""
         lines.append(
             f"| {item.setting.label} | {ids} | {final.agent} | {final.metric} | {item.tasks} | {item.runs} | "
-            f"{mean_se_text(final)} | {iqm_text(final)} |"
+            f"{mean_se_text(final)} | {iqm_text(final)} |{gap_cell}"
         )
     return lines
+
+
+def improvements(
+    aggregates: Sequence[Aggregate], settings: Settings
+) -> list[tuple[Aggregate, Aggregate, Interval]]:
+    """(A, B, P(A > B)) for every ordered pair of ``aggregates``, with the stratified-bootstrap interval at
+    ``settings``' confidence, resamples and seed. P(B > A) is 1 − P(A > B) resample by resample, so it is derived from
+    the same bootstrap: the two intervals mirror each other exactly."""
+    found: dict[tuple[int, int], Interval] = {}
+    for (i, a), (j, b) in itertools.combinations(enumerate(aggregates), 2):
+        forward = probability_of_improvement(
+            a.scores,
+            b.scores,
+            confidence=settings.confidence,
+            n_resamples=settings.n_resamples,
+            seed=settings.seed,
+        )
+        found[i, j] = forward
+        found[j, i] = Interval(
+            1.0 - forward.point, 1.0 - forward.high, 1.0 - forward.low, forward.runs, forward.note
+        )
+    return [(a, b, found[i, j]) for (i, a), (j, b) in itertools.permutations(enumerate(aggregates), 2)]
+
+
+def improvement_section(
+    section: str, aggregates: Sequence[Aggregate], settings: Settings, numbers: NumberLog
+) -> list[str]:
+    """``report.md`` lines of the probability of improvement of every ordered pair of ``aggregates`` (a sentence
+    saying what it is, and a table: P(A > B) [CI] and whether the interval separates A from B); its numbers go to
+    ``numbers`` under ``section``."""
+    level = f"{settings.confidence:.0%}"
+    metric = aggregates[0].final.metric
+    md = [
+        (
+            f"Probability of improvement (rliable): P(A > B) is the chance that a run of A ends with a higher {metric} "
+            "than a run of B in the same panel, ties counting half (the normalised Mann-Whitney U), averaged over the "
+            f"panels; 0.5 is no difference. Its {level} CI is a stratified bootstrap of both settings' runs of each "
+            "panel; it separates A from B when it excludes 0.5."
+        ),
+        "",
+        f"| A | B | P(A > B) [{level} CI] | separation |",
+        "| --- | --- | --- | --- |",
+    ]
+    for a, b, interval in improvements(aggregates, settings):
+        words = separation_text(interval, IMPROVEMENT_NULL, settings.confidence)
+        md.append(f"| {a.setting.label} | {b.setting.label} | {interval_text(interval)} | {words} |")
+        agent = a.final.agent if a.final.agent == b.final.agent else f"{a.final.agent} > {b.final.agent}"
+        coarse = "" if math.isnan(interval.low) or not interval.note else f"; {interval.note}"  # 2 runs
+        numbers.add_interval_row(
+            section,
+            f"{a.setting.ident} > {b.setting.ident}",
+            f"{a.setting.label} > {b.setting.label}",
+            agent,
+            metric,
+            "probability_of_improvement",
+            interval,
+            a.runs + b.runs,
+            words + coarse,
+        )
+    return md + [""]
 
 
 def aggregate_section(
@@ -109,9 +204,10 @@ def aggregate_section(
     curves_rows: list[dict[str, Any]],
 ) -> list[str]:
     """``report.md`` lines of ``spec``'s aggregates over its panels (none where the figure has no panel): the table
-    of its compared settings and, for a figure that compares learners, their performance profile, drawn into
-    ``figures_dir`` and appended to ``figures``; numbers go to ``numbers`` (section ``<figure>/aggregate``) and the
-    profile's points to ``curves_rows``."""
+    of its compared settings, their probabilities of improvement and, for a figure that compares learners, their
+    performance profile, drawn into ``figures_dir`` and appended to ``figures``; numbers go to ``numbers`` (sections
+    ``<figure>/aggregate`` and ``<figure>/probability_of_improvement``) and the profile's points to
+    ``curves_rows``."""
     panels = figure_panels(spec, conditions)
     if not panels:
         return []
@@ -124,12 +220,23 @@ def aggregate_section(
         label, ident, final = item.setting.label, item.setting.ident, item.final
         numbers.add_row(section, ident, label, final.agent, final.metric, "tasks", item.tasks, item.runs)
         numbers.add_final_row(section, ident, label, final)
+        if item.gap is not None:
+            numbers.add_interval_row(
+                section, ident, label, final.agent, final.metric, "optimality_gap", item.gap, item.runs
+            )
+    gap = (
+        f" The optimality gap is the runs' mean shortfall of final {spec.metric} below 1 (lower is better), with "
+        "the same bootstrap's CI."
+        if spec.metric in GAP_METRICS
+        else ""
+    )
     md = [
         (
             f"Aggregate over the figure's {len(panels)} panel{'s' if len(panels) > 1 else ''} as tasks (rliable, "
             "Agarwal et al. 2021): each row "
             f"pools the learner's final {spec.metric} of the conditions at one rank of every panel; the IQM's "
             f"{settings.confidence:.0%} CI is a stratified bootstrap (each panel's runs resampled on their own)."
+            + gap
         ),
         "",
         *aggregate_table(aggregates, settings.confidence),
@@ -142,6 +249,8 @@ def aggregate_section(
             + ".",
             "",
         ]
+    if len(aggregates) > 1:
+        md += improvement_section(f"{spec.name}/probability_of_improvement", aggregates, settings, numbers)
     if spec.profile:
         md += _profile_figure(spec, aggregates, settings, figures_dir, figures, curves_rows)
     return md

@@ -277,6 +277,29 @@ class NumberLog:
                 final.iqm.note,
             )
 
+    def add_interval_row(
+        self,
+        section: str,
+        condition_id: str,
+        condition: str,
+        agent: str,
+        metric: str,
+        statistic: str,
+        interval: Interval,
+        seeds: int,
+        note: str = "",
+    ) -> None:
+        """``interval``'s point as ``statistic`` and its bounds as ``<statistic>_ci_low``/``_ci_high``, as
+        ``add_row`` names them; ``note`` defaults to the interval's own."""
+        for name, value in (
+            (statistic, interval.point),
+            (f"{statistic}_ci_low", interval.low),
+            (f"{statistic}_ci_high", interval.high),
+        ):
+            self.add_row(
+                section, condition_id, condition, agent, metric, name, value, seeds, note or interval.note
+            )
+
     def frame(self) -> pd.DataFrame:
         return pd.DataFrame(self.rows, columns=list(self.COLUMNS))
 
@@ -303,14 +326,18 @@ def mean_se_text(final: Final) -> str:
 
 
 def iqm_text(final: Final) -> str:
-    """``final``'s IQM and its interval as ``report.md`` shows them: "0.400 [0.200, 0.600]", "no CI" without one,
-    "(coarse)" after one of two runs."""
-    interval = final.iqm
-    low, high = fmt_metric(interval.low, final.metric), fmt_metric(interval.high, final.metric)
+    """``final``'s IQM and its interval as ``report.md`` shows them (``interval_text``)."""
+    return interval_text(final.iqm, final.metric)
+
+
+def interval_text(interval: Interval, metric: str = "") -> str:
+    """A point and its interval as ``report.md`` shows them, in ``metric``'s digits (``fmt_metric``):
+    "0.400 [0.200, 0.600]", "no CI" without one, "(coarse)" after one of two runs."""
+    low, high = fmt_metric(interval.low, metric), fmt_metric(interval.high, metric)
     ci = "no CI" if math.isnan(interval.low) else f"[{low}, {high}]"
     if interval.note.startswith("2 runs"):
         ci += " (coarse)"
-    return f"{fmt_metric(interval.point, final.metric)} {ci}"
+    return f"{fmt_metric(interval.point, metric)} {ci}"
 
 
 def final_table(rows: Sequence[tuple[Condition, str, Final]], confidence: float) -> list[str]:
