@@ -19,14 +19,18 @@ from sidewalk.algos import ALGORITHMS
 from sidewalk.algos.base import AlgoConfig
 from sidewalk.envs.grid import DiscreteSidewalkEnv
 from sidewalk.envs.unicycle import ContinuousSidewalkEnv
+from sidewalk.later_keys import NOMINAL_EVAL
 from sidewalk.registry import OPPONENTS
 from sidewalk.schema import (  # noqa: F401  # the schemas, where callers have long imported them
+    PROTOCOL_ENV_FIELDS,
     ContinuousEnvSchema,
     DiscreteEnvSchema,
+    EvalSchema,
     ExperimentSchema,
     LoggerSchema,
     OpponentSchema,
     RewardSchema,
+    draws_starts,
     env_params_of,
     register_schemas,
     room_side,
@@ -69,9 +73,29 @@ class Experiment:
     resume: bool
     keep_checkpoint: str
     torch_threads: int
+    evaluation: EvalSchema = dataclasses.field(default_factory=lambda: EvalSchema(**NOMINAL_EVAL))
     shield: bool = False  # the safety shield guards the learner's actions (training and evaluation)
     other_play: bool = False  # self-play partners act through a random mirror of the game (sidewalk.symmetry)
     replicas: int = 1  # seeds seed .. seed+replicas-1 trained together in this process (sidewalk.group)
+
+    @property
+    def eval_env_params(self) -> Any:
+        """The env parameters of the evaluation worlds: the training env's, with the protocol's jitter bounds."""
+        return protocol_env_params(self.evaluation, self.domain, self.env_params)
+
+    def protocol_summary(self) -> dict[str, Any]:
+        """The evaluation protocol as ``summary.json`` records it: its name, the bounds of this domain, and whether
+        training drew its worlds alike."""
+        bounds = {name: getattr(self.evaluation, name) for name in PROTOCOL_ENV_FIELDS[self.domain]}
+        return {"name": self.evaluation.name, **bounds, "train_alike": self.evaluation.train_alike}
+
+
+def protocol_env_params(protocol: EvalSchema, domain: str, env_params: Any) -> Any:
+    """``env_params`` with the jitter bounds of ``protocol`` (this domain's: ``PROTOCOL_ENV_FIELDS``); a scenario that
+    draws its starts and goals itself (``random``) keeps its own."""
+    if draws_starts(env_params.layout):
+        return env_params
+    return dataclasses.replace(env_params, **{name: getattr(protocol, name) for name in PROTOCOL_ENV_FIELDS[domain]})
 
 
 def _field_names(schema: type) -> list[str]:
@@ -88,7 +112,7 @@ def check_known_keys(cfg: DictConfig, algo_cls: type) -> None:
     env_schema = DiscreteEnvSchema if cfg.env.domain == "discrete" else ContinuousEnvSchema
     groups = {
         "env": env_schema, "reward": RewardSchema, "opponent": OpponentSchema, "logger": LoggerSchema,
-        "algo": algo_cls,
+        "algo": algo_cls, "eval": EvalSchema,
     }
     for group, schema in groups.items():
         check_keys(f"{group}.* ({group}={cfg[group].get('name', cfg[group].get('domain'))})", list(cfg[group].keys()),
@@ -105,6 +129,7 @@ def validate(cfg: DictConfig) -> Experiment:
     # The noise means a random-action probability in the grid and a ±ε uniform noise in the continuous world.
     check_range("noise", cfg.noise, 0.0, 1.0 if domain == "discrete" else 10.0)
     env_params = env_params_of(cfg)
+    evaluation = _check_protocol(cfg, domain, env_params)
     n_agents = _check_world(cfg, domain, opponent, env_params)
     ego = cfg.opponent.ego
     check_int("opponent.ego", ego, 0, n_agents - 1)
@@ -130,6 +155,7 @@ def validate(cfg: DictConfig) -> Experiment:
         resume=bool(cfg.resume),
         keep_checkpoint=str(cfg.keep_checkpoint),
         torch_threads=cfg.torch_threads,
+        evaluation=evaluation,
         shield=bool(cfg.shield),
         other_play=bool(cfg.other_play),
         replicas=cfg.replicas,
@@ -183,6 +209,18 @@ def _check_pairing(cfg: DictConfig) -> tuple[str, str, str]:
             f"for env={domain}: {fitting(True)}"
         )
     return domain, opponent, algo_name
+
+
+def _check_protocol(cfg: DictConfig, domain: str, env_params: Any) -> EvalSchema:
+    """The evaluation protocol, its bounds checked against the scenario's walls (the env raises naming the largest
+    bound that keeps every agent off them)."""
+    protocol = OmegaConf.to_object(cfg.eval) if OmegaConf.get_type(cfg.eval) is EvalSchema else EvalSchema(**cfg.eval)
+    env_cls = DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
+    try:
+        env_cls.layout_for(protocol_env_params(protocol, domain, env_params))
+    except ValueError as error:
+        raise ValueError(f"eval={protocol.name}: eval.{error}") from None
+    return protocol
 
 
 def _check_world(cfg: DictConfig, domain: str, opponent: str, env_params: Any) -> int:

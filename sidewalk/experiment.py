@@ -4,7 +4,8 @@
 
 - ``config.yaml`` and ``history.jsonl``: the resolved config and the run's events (``sidewalk.run_folder``);
 - ``metrics.csv``: one row per iteration (frames, wall clock, train metrics, eval metrics at eval iterations);
-- ``summary.json``: the final evaluation as flat SPEC §6 keys plus seed, wall clock, versions, git revision;
+- ``summary.json``: the final evaluation as flat SPEC §6 keys plus seed, the evaluation protocol, the absolute metric
+  (``policy.best.pt``, the best evaluation's policy, played on ten times the episodes), wall clock, versions, revision;
 - ``checkpoint.pt`` (and the generation before it, ``checkpoint.prev.pt``): everything needed to continue exactly
   where the run was (``resume=true``), kept after the run only with ``keep_checkpoint=all``;
 - ``policy.pt``: the learner's networks and the world they learned in (written at every checkpoint and at the end),
@@ -16,8 +17,8 @@ and a resumed run rewinds ``metrics.csv`` to its checkpoint before going on, so 
 run that was never interrupted. The trial holds the folder's writer lock (``run_folder.writer_lock``): a second
 process on the same folder is refused. SIGTERM, SIGUSR1 (a scheduler's pre-emption notice) and a first Ctrl-C
 (SIGINT) end the run at the end of its iteration with a checkpoint (``RunInterrupted``); a second Ctrl-C stops at
-once (the process dies of SIGINT), which atomic writes make safe for the folder; a learner whose loss or parameters turn non-finite stops the
-run before anything is written from it (``LearnerDiverged``), so the last checkpoint is the last good state.
+once (the process dies of SIGINT), which atomic writes make safe for the folder; a learner whose loss or parameters
+turn non-finite stops the run before anything is written from it (``LearnerDiverged``): the last checkpoint is good.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import random
 import signal
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -50,7 +51,9 @@ from sidewalk.evaluate import evaluate, train_metrics
 from sidewalk.loggers import make_logger
 from sidewalk.opponents.base import make_opponent
 from sidewalk.opponents.policy import policy_description
+from sidewalk.progress import Best, Progress
 from sidewalk.run_folder import (
+    BEST_POLICY,
     METRICS,
     SUMMARY,
     append_history,
@@ -62,6 +65,7 @@ from sidewalk.run_folder import (
     record_start,
     save_checkpoint,
     save_policy,
+    strict_json,
     writer_lock,
 )
 from sidewalk.snapshot import capture_env, capture_rng, restore_env, restore_rng
@@ -69,15 +73,20 @@ from sidewalk.stops import LearnerDiverged, RunInterrupted, StopSignals, diverge
 from sidewalk.views import CentralizedView, EgoView, SelfPlayView
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds draw from a stream of their own, the same at every evaluation
+# The absolute metric (Colas et al. 2018, marl-eval): the best evaluation's policy played on ten times the episodes,
+# in worlds of a stream of their own.
+ABSOLUTE_EPISODES = 10
+ABSOLUTE_SEED_OFFSET = 2_000_003
 WALL_CLOCK_COLUMNS = ("time_s", "frames_per_s")
-METRICS_EVERY_S = 10.0  # metrics.csv is rewritten at least this often, so a watcher sees progress
 
 
-def make_view(experiment: Experiment, num_envs: int, seed: int) -> EnvBase:
-    """The env a learner trains or is evaluated on: the core env of ``num_envs`` worlds seen through the
-    experiment's view (ego against a scripted opponent or a learned partner, centralized, or self-play)."""
+def make_view(experiment: Experiment, num_envs: int, seed: int, env_params: Any = None) -> EnvBase:
+    """The env a learner trains or is evaluated on: the core env of ``num_envs`` worlds (``env_params``, by default
+    the training worlds') seen through the experiment's view (ego against a scripted opponent or a learned partner,
+    centralized, or self-play)."""
     core_cls = DiscreteSidewalkEnv if experiment.domain == "discrete" else ContinuousSidewalkEnv
-    core = core_cls(num_envs, device=experiment.device, seed=seed, params=experiment.env_params)
+    params = experiment.env_params if env_params is None else env_params
+    core = core_cls(num_envs, device=experiment.device, seed=seed, params=params)
     if experiment.opponent == "centralized":
         return CentralizedView(core, shield=experiment.shield)
     if experiment.opponent == "self":
@@ -89,6 +98,13 @@ def make_view(experiment: Experiment, num_envs: int, seed: int) -> EnvBase:
         core, opponent=opponent, ego=experiment.ego, end_on_ego_done=experiment.end_on_ego_done,
         shield=experiment.shield,
     )
+
+
+def make_eval_view(experiment: Experiment, seed: int | None = None) -> EnvBase:
+    """The env an evaluation plays: ``eval_episodes`` worlds drawn as the experiment's evaluation protocol says
+    (``Experiment.eval_env_params``), seeded from the evaluation's own stream (``seed``: the experiment's)."""
+    seed = experiment.seed if seed is None else seed
+    return make_view(experiment, experiment.eval_episodes, seed + EVAL_SEED_OFFSET, env_params=experiment.eval_env_params)
 
 
 def collector_frames_per_batch(experiment: Experiment) -> int:
@@ -112,29 +128,6 @@ class Parts:
     logger: Any
     frames_per_batch: int
     ego: int | None  # the learner's agent in an ego view; None where it plays every agent
-
-
-@dataclass
-class Progress:
-    """Where a trial stands: the metrics rows so far, the iterations done and the wall clock's origin."""
-
-    rows: list[dict[str, float]] = field(default_factory=list)
-    iteration: int = 0
-    started: float = 0.0
-    last_write: float = 0.0
-
-    def elapsed(self) -> float:
-        return time.perf_counter() - self.started
-
-    def due(self, experiment: Experiment, stop: bool, signals: StopSignals) -> tuple[bool, bool, bool, bool]:
-        """After an iteration: (done, interrupted by a signal, a checkpoint due, metrics.csv due). The end writes
-        its own checkpoint (``keep_checkpoint=all``) or none, so a checkpoint is due only before it."""
-        done = stop or self.iteration >= experiment.iterations
-        interrupted = signals.received is not None and not done
-        periodic = bool(experiment.checkpoint_every) and self.iteration % experiment.checkpoint_every == 0
-        checkpoint = interrupted or periodic
-        metrics = checkpoint or done or time.perf_counter() - self.last_write > METRICS_EVERY_S
-        return done, interrupted, checkpoint and not done, metrics
 
 
 class Trial:
@@ -186,7 +179,7 @@ class Trial:
         """env → view → learner → collector → replay buffer → logger."""
         exp = self.experiment
         train_env = TransformedEnv(make_view(exp, exp.num_envs, exp.seed), RewardSum())
-        eval_env = make_view(exp, exp.eval_episodes, exp.seed + EVAL_SEED_OFFSET)
+        eval_env = make_eval_view(exp)
         algo: Algorithm = ALGORITHMS[exp.algo.name](exp.algo, train_env, device=exp.device)
         frames_per_batch = collector_frames_per_batch(exp)
         collector = Collector(
@@ -219,6 +212,7 @@ class Trial:
             restore_collector_state(parts.collector, saved)
             restore_rng(saved["rng"])
             state.rows, state.iteration, elapsed_before = saved["rows"], saved["iteration"], saved["elapsed_s"]
+            state.load_best_state(saved.get("best"))
         if self.config:  # from runners/main.py: the folder records the config and this start
             record_start(self.run_dir, self.config, exp.resume)
         if exp.resume:
@@ -259,6 +253,7 @@ class Trial:
             metrics = evaluate(parts.eval_env, algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
             eval_ended = time.perf_counter()
             restore_rng(rng)
+            state.keep_if_best(metrics, lambda: self._policy_state(algo))
             row.update({f"eval/{key}": value for key, value in metrics.items()})
             stop = on_evaluation is not None and bool(on_evaluation(metrics, eval_started, eval_ended))
         elapsed = state.elapsed()
@@ -309,6 +304,7 @@ class Trial:
             **collector_state(parts.collector),
             "rng": capture_rng(),
             "rows": state.rows,
+            "best": state.best_state(),
         }
         save_checkpoint(self.run_dir, saved)
         save_policy(self.run_dir, self._policy_state(parts.algo))  # a partner can play the run while it trains
@@ -331,25 +327,43 @@ class Trial:
         save_policy(self.run_dir, self._policy_state(parts.algo))
         rows = state.rows
         last_eval = {key[len("eval/"):]: value for key, value in rows[-1].items() if key.startswith("eval/")}
-        final = last_eval or evaluate(parts.eval_env, parts.algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+        final = last_eval
+        if not final:  # no periodic evaluation (eval_every=0): the final one is also the best
+            final = evaluate(parts.eval_env, parts.algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+            state.keep_if_best(final, lambda: self._policy_state(parts.algo))
         training_cost = rows[-1].get("train/cumulative_cost", 0.0) if rows else 0.0
         frames = iteration * parts.frames_per_batch
+        wall_clock_s = state.elapsed()
         summary = {
             **final,
             "seed": exp.seed,
+            "eval_protocol": exp.protocol_summary(),
+            "absolute": self._absolute(parts, state.best),
             "iterations": iteration,
             "frames": frames,
             # Safety Gym's third figure: the cost paid over all of training per frame (world-step) collected.
             "train_cost": training_cost,
             "cost_rate": training_cost / max(frames, 1),
-            "wall_clock_s": state.elapsed(),
+            "wall_clock_s": wall_clock_s,
             "versions": package_versions(),
             "git_revision": revision,
         }
-        # Strict JSON: an undefined metric (no agent arrived, so no path efficiency) is null, not NaN.
-        strict = {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in summary.items()}
-        atomic_write(self.run_dir / SUMMARY, lambda tmp: tmp.write_text(json.dumps(strict, indent=2, default=str)))
+        atomic_write(self.run_dir / SUMMARY, lambda tmp: tmp.write_text(json.dumps(strict_json(summary), indent=2,
+                                                                                      default=str)))
         return summary
+
+    def _absolute(self, parts: Parts, best: Best | None) -> dict[str, Any] | None:
+        """The best evaluation's policy (``policy.best.pt``) on ``ABSOLUTE_EPISODES`` times the evaluation's episodes,
+        worlds of their own stream; None without an evaluation. Once training is over: it loads that policy."""
+        if best is None:
+            return None
+        exp = self.experiment
+        save_policy(self.run_dir, best.policy, BEST_POLICY)
+        parts.algo.load_policy_state_dict(best.policy)
+        seed = exp.seed + ABSOLUTE_SEED_OFFSET
+        env = make_view(exp, ABSOLUTE_EPISODES * exp.eval_episodes, seed, env_params=exp.eval_env_params)
+        metrics = evaluate(env, parts.algo.evaluation_policy(), seed=seed)
+        return {"iteration": best.iteration, "frames": best.iteration * parts.frames_per_batch, **metrics}
 
     def _policy_state(self, algo: Algorithm) -> dict[str, Any]:
         """``policy.pt``: the networks and the description of the world they learned in, all a partner needs."""
@@ -380,6 +394,6 @@ class Trial:
 
 __all__ = [  # the stopping and state helpers live in their own modules; their names stay importable from here
     "EVAL_SEED_OFFSET", "LearnerDiverged", "Parts", "Progress", "RunInterrupted", "StopSignals", "Trial",
-    "capture_env", "capture_rng", "collector_frames_per_batch", "make_logger", "make_view", "package_versions",
-    "restore_env", "restore_rng", "train_metrics",
+    "capture_env", "capture_rng", "collector_frames_per_batch", "make_eval_view", "make_logger", "make_view",
+    "package_versions", "restore_env", "restore_rng", "train_metrics",
 ]

@@ -44,11 +44,11 @@ from sidewalk.algos.base import Algorithm
 from sidewalk.algos.stacked import vectorized_update
 from sidewalk.config import Experiment
 from sidewalk.experiment import (
-    EVAL_SEED_OFFSET,
     Parts,
     Progress,
     Trial,
     collector_frames_per_batch,
+    make_eval_view,
     make_view,
 )
 from sidewalk.loggers import make_logger
@@ -229,7 +229,7 @@ class GroupTrial:
                 replay_buffer = TensorDictReplayBuffer(
                     storage=LazyTensorStorage(exp.algo.buffer_size, device=exp.device), batch_size=exp.algo.batch_size
                 )
-            eval_env = make_view(lone, exp.eval_episodes, lone.seed + EVAL_SEED_OFFSET)
+            eval_env = make_eval_view(lone)
             parts = Parts(train_env, eval_env, algo, collector, replay_buffer, make_logger(lone, trial.run_dir),
                           frames_per_batch, ego)
             replicas.append(Replica(trial, parts, Progress()))
@@ -248,6 +248,7 @@ class GroupTrial:
                 if replica.parts.replay_buffer is not None:
                     replica.parts.replay_buffer.load_state_dict(held["replay_buffer"])
                 replica.state.rows, replica.state.iteration = held["rows"], saved["iteration"]
+                replica.state.load_best_state(held.get("best"))
             restore_env(replicas[0].parts.train_env.base_env, saved["env"])
             restore_collector_state(collector, saved)
             self.streams.load_state_dict(saved["streams"])
@@ -328,6 +329,7 @@ class GroupTrial:
                     "replay_buffer": (replica.parts.replay_buffer.state_dict()
                                       if replica.parts.replay_buffer is not None else None),
                     "rows": replica.state.rows,
+                    "best": replica.state.best_state(),
                 }
                 for replica in replicas
             ],

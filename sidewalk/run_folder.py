@@ -22,6 +22,7 @@ import contextlib
 import datetime
 import fcntl
 import json
+import math
 import os
 import pickle
 import socket
@@ -38,6 +39,7 @@ HISTORY = "history.jsonl"
 CHECKPOINT = "checkpoint.pt"
 PREVIOUS_CHECKPOINT = "checkpoint.prev.pt"
 POLICY = "policy.pt"
+BEST_POLICY = "policy.best.pt"  # the policy of the run's best evaluation, which its absolute metric re-evaluates
 METRICS = "metrics.csv"
 # A committed reference run's metrics (sidewalk.reference collect): compressed, float32 precision, read like METRICS.
 METRICS_COMPRESSED = "metrics.csv.xz"
@@ -394,12 +396,20 @@ def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> dict[str, Any]:
     )
 
 
-def save_policy(run_dir: Path, modules_state: dict[str, Any]) -> None:
-    """Write ``policy.pt``: the learner's networks (``Algorithm.modules()`` state) and what they learned on, small
-    enough to keep."""
+def strict_json(value: Any) -> Any:
+    """``value`` with every non-finite float (an undefined metric: no agent arrived, so no path efficiency) made
+    null, in nested dicts too: strict JSON has no NaN."""
+    if isinstance(value, dict):
+        return {key: strict_json(item) for key, item in value.items()}
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def save_policy(run_dir: Path, modules_state: dict[str, Any], name: str = POLICY) -> None:
+    """Write ``policy.pt`` (or ``name``): the learner's networks (``Algorithm.modules()`` state) and what they learned
+    on, small enough to keep."""
     import torch
 
-    atomic_write(run_dir / POLICY, lambda tmp: torch.save(modules_state, tmp))
+    atomic_write(run_dir / name, lambda tmp: torch.save(modules_state, tmp))
 
 
 def drop_training_state(run_dir: Path) -> None:

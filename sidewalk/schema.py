@@ -9,6 +9,7 @@ folder's saved config is read back through them (``with_schema_defaults``), belo
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -19,7 +20,7 @@ from sidewalk.algos import ALGORITHMS
 from sidewalk.envs.grid import DiscreteParams
 from sidewalk.envs.rewards import RewardParams
 from sidewalk.envs.unicycle import ContinuousParams
-from sidewalk.later_keys import later_algo_keys
+from sidewalk.later_keys import LATER_ENV_KEYS, NOMINAL_EVAL, later_algo_keys, later_opponent_keys
 
 # Set by the top level (`noise`) and the reward group, so they are not env-group fields.
 ENV_FIELDS_SET_ELSEWHERE = ("noise", "rewards")
@@ -77,6 +78,34 @@ class LoggerSchema:
     tracking_uri: str = ""  # mlflow: empty = a local file store inside the run folder
 
 
+# The env parameters an evaluation protocol sets, per domain: how its worlds differ from one another.
+PROTOCOL_ENV_FIELDS = {
+    "discrete": ("start_jitter_rows", "goal_jitter_rows"),
+    "continuous": ("start_jitter_m", "goal_jitter_m", "heading_jitter_rad"),
+}
+
+
+@dataclass
+class EvalSchema:
+    """An evaluation protocol (``eval=NAME``, docs/guide/evaluation.md): how an evaluation's worlds differ from one
+    another. Each start and goal is moved within the stated bounds on every reset (grid: rows across the sidewalk;
+    continuous: metres in x and y, and the start heading by up to ``heading_jitter_rad``), so that at noise 0 the
+    worlds play different episodes and a success rate is a rate. ``train_alike``: training draws its worlds the same
+    way (the env group's jitter defaults to the protocol's); false keeps training on the env group's own."""
+
+    name: str = MISSING
+    start_jitter_rows: int = 0
+    goal_jitter_rows: int = 0
+    start_jitter_m: float = 0.0
+    goal_jitter_m: float = 0.0
+    heading_jitter_rad: float = 0.0
+    train_alike: bool = True
+
+
+# What a run written before evaluation protocols existed was evaluated on: the scenario's own worlds.
+NOMINAL_PROTOCOL = EvalSchema(**NOMINAL_EVAL)
+
+
 @dataclass
 class ExperimentSchema:
     """The root config. ``iterations`` counts collector batches (the paper's unit); ``eval_every`` and
@@ -88,6 +117,7 @@ class ExperimentSchema:
     algo: Any = MISSING
     reward: Any = MISSING
     logger: Any = MISSING
+    eval: Any = MISSING
     seed: int = 0
     replicas: int = 1
     noise: float = 0.0
@@ -107,9 +137,15 @@ class ExperimentSchema:
 def with_schema_defaults(cfg: DictConfig) -> DictConfig:
     """A run folder's saved config with every key it lacks filled from today's schemas (top level, algorithm,
     logger): a folder written before a key existed (``keep_checkpoint``, ``algo.dueling``) reads as the run it was,
-    since a new key's default keeps the old behaviour, or ``sidewalk.later_keys`` gives the value it ran with. The algorithm
-    and logger sections come back typed."""
+    since a new key's default keeps the old behaviour, or ``sidewalk.later_keys`` gives the value it ran with (the
+    evaluation protocol, the env's jitter, the Dijkstra agent's tie-break). The algorithm, logger and evaluation
+    sections come back typed."""
     cfg = OmegaConf.merge(OmegaConf.structured(ExperimentSchema), cfg)
+    saved_eval = {} if OmegaConf.is_missing(cfg, "eval") else cfg.eval
+    cfg.eval = OmegaConf.merge(OmegaConf.structured(NOMINAL_PROTOCOL), saved_eval)
+    env_keys = LATER_ENV_KEYS.get(str(cfg.env.get("domain")), {})
+    cfg.env = OmegaConf.merge({key.split(".", 1)[1]: value for key, value in env_keys.items()}, cfg.env)
+    cfg.opponent.params = OmegaConf.merge(later_opponent_keys(cfg.opponent.name), cfg.opponent.params)
     cfg.algo = OmegaConf.merge(
         OmegaConf.structured(ALGORITHMS[cfg.algo.name].Config), later_algo_keys(cfg.algo.name), cfg.algo
     )
@@ -133,18 +169,63 @@ def room_side(*, _parent_: Any, _node_: Any) -> float | int:
     return env_cls.with_room(given)[side]
 
 
-# Self-play's progress shaping (reward.c_progress), per metre (continuous) or per grid cell: without it the
-# learners of `opponent=self` end with one agent walking home and the other never learning to (docs/guide/multiagent.md).
+# Self-play's progress shaping (reward.c_progress), per metre (continuous) or per grid cell (every grid view's): without
+# it the learners of `opponent=self` end with one agent walking home and the other never learning to
+# (docs/guide/multiagent.md).
 SELFPLAY_PROGRESS = {"continuous": 0.1, "discrete": 0.02}
 
 
 def progress_default(*, _root_: Any) -> float:
-    """``${sidewalk.progress:}``, the default of ``reward.c_progress`` in ``conf/reward``: self-play's shaping
-    (``SELFPLAY_PROGRESS``) when every agent learns (``opponent=self``), else 0 (the paper's reward). A value given
-    on the command line or in a preset is taken as it is; the run's ``config.yaml`` records the number."""
-    if _root_.opponent.name != "self":
+    """``${sidewalk.progress:}``, the default of ``reward.c_progress`` in ``conf/reward``: the grid's shaping
+    (``SELFPLAY_PROGRESS``) in every view of the grid; in the continuous world self-play's when every agent learns
+    (``opponent=self``), else 0 (the paper's reward). In the grid, DQN against the Dijkstra agent without it ended
+    waiting beside its own start once that agent had parked there, its Q-values for a walk of 14 cells too close to
+    pick one (docs/guide/evaluation.md). A value given on the command line or in a preset (the paper's presets
+    give 0) is taken as it is; the run's ``config.yaml`` records the number."""
+    if _root_.opponent.name != "self" and _root_.env.domain != "discrete":
         return 0.0
     return SELFPLAY_PROGRESS[_root_.env.domain]
+
+
+def trained_jitter(*, _root_: Any, _node_: Any) -> float | int:
+    """``${sidewalk.train_jitter:}``, the default of a jitter bound in ``conf/env`` (``start_jitter_rows``, ...): the
+    evaluation protocol's bound when it says training draws its worlds alike (``eval.train_alike``), else 0 (the
+    scenario's own starts and goals). The run's ``config.yaml`` records the number."""
+    eval_protocol = _root_.get("eval")
+    if eval_protocol is None or not eval_protocol.get("train_alike", True) or draws_starts(_root_.env.layout):
+        return 0
+    return eval_protocol.get(_node_._key(), 0)
+
+
+def within_walls(bound: float, *, _root_: Any, _node_: Any) -> float | int:
+    """``${sidewalk.within_walls:B}``, a bound of ``conf/eval/perturbed.yaml``: ``B``, or less where the scenario's
+    walls allow less (the largest bound that keeps every start, or goal, on free cells: ``sidewalk.envs.layouts.jitter``),
+    so the protocol perturbs every scenario as far as it can hold. A bound given on the command line is taken as it is
+    and checked (``config.validate`` refuses one that puts an agent into a wall); the run's ``config.yaml`` records
+    the number."""
+    from sidewalk.envs.layouts import grid_layout, plane_layout
+    from sidewalk.envs.layouts.jitter import largest_grid_jitter, largest_plane_jitter
+
+    env, name = _root_.env, _node_._key()
+    if (env.domain == "discrete") != name.endswith("_rows") or draws_starts(env.layout):
+        return bound  # the other domain's bound, or a scenario that draws its starts: not applied
+    try:
+        if env.domain == "discrete":
+            layout = grid_layout(env.layout, env.width_cells, env.length_cells, env.n_agents, env.min_start_goal_cells)
+            return min(bound, largest_grid_jitter(layout, name))
+        layout = plane_layout(env.layout, env.length_m, env.width_m, env.n_agents, env.agent_radius_m,
+                              env.goal_radius_m, env.min_start_goal_m)
+    except (ValueError, TypeError):  # a scenario that cannot be built: validate names what is wrong
+        return bound
+    return min(bound, math.floor(largest_plane_jitter(layout, name, env.agent_radius_m) * 1000 + 1e-6) / 1000)
+
+
+def draws_starts(layout: Any) -> bool:
+    """Whether the scenario ``layout`` (a name) draws every world's starts and goals itself (``random``), so that no
+    jitter applies to it; an unknown name is for ``validate`` to refuse."""
+    from sidewalk.registry import LAYOUTS
+
+    return isinstance(layout, str) and layout in LAYOUTS.names() and LAYOUTS[layout].draws_starts
 
 
 def on_images(on_images: Any, otherwise: Any, *, _root_: Any) -> Any:
@@ -170,6 +251,8 @@ def register_schemas() -> None:
     OmegaConf.register_new_resolver("sidewalk.searchpath", plugin_config_paths, replace=True)
     OmegaConf.register_new_resolver("sidewalk.progress", progress_default, replace=True)
     OmegaConf.register_new_resolver("sidewalk.on_images", on_images, replace=True)
+    OmegaConf.register_new_resolver("sidewalk.train_jitter", trained_jitter, replace=True)
+    OmegaConf.register_new_resolver("sidewalk.within_walls", within_walls, replace=True)
     store = ConfigStore.instance()
     store.store(name="experiment_schema", node=ExperimentSchema)
     store.store(group="schema/env", name="discrete", node=DiscreteEnvSchema)
@@ -177,6 +260,7 @@ def register_schemas() -> None:
     store.store(group="schema/reward", name="reward", node=RewardSchema)
     store.store(group="schema/opponent", name="opponent", node=OpponentSchema)
     store.store(group="schema/logger", name="logger", node=LoggerSchema)
+    store.store(group="schema/eval", name="eval", node=EvalSchema)
     for name in ALGORITHMS:
         store.store(group="schema/algo", name=name, node=ALGORITHMS[name].Config)
 

@@ -40,8 +40,8 @@ class CountingPolicy(torch.nn.Module):
 
 
 def test_policy_runs_once_per_distinct_observation_of_the_running_worlds():
-    policy, view = learner_and_view("env=discrete", worlds=8)
-    td = view.reset()  # noise 0: every world starts alike
+    policy, view = learner_and_view("env=discrete", "eval=nominal", worlds=8)
+    td = view.reset()  # noise 0, the fixed starts: every world starts alike
     observation = td.get("observation").clone()
     observation[5:] = torch.randint_like(observation[5:], 0, 255)  # three more distinct worlds
     td.set("observation", observation)
@@ -77,9 +77,12 @@ def test_a_sampling_policy_draws_for_every_world():
     assert set(counting.inputs) == {16}  # never deduplicated: equal inputs would share one draw
 
 
-@pytest.mark.parametrize("noise, distinct", [(0.0, 1), (0.3, 16)])
-def test_distinct_episodes_says_how_many_different_episodes_an_evaluation_played(noise, distinct):
-    policy, view = learner_and_view("env=discrete", f"noise={noise}", worlds=16)
+NOMINAL_V1 = ("eval=nominal", "opponent.params.tie_break=progress")  # the paper's fixed starts, a deterministic partner
+
+
+@pytest.mark.parametrize("overrides, distinct", [(NOMINAL_V1, 1), (("noise=0.3", *NOMINAL_V1), 16)])
+def test_distinct_episodes_says_how_many_different_episodes_an_evaluation_played(overrides, distinct):
+    policy, view = learner_and_view("env=discrete", *overrides, worlds=16)
     metrics = evaluation.evaluate(view, policy, seed=11)
     # noise 0 in the fixed sidewalk: 16 worlds, one episode (its rates are 0 or 1); noise: every world its own
     assert (metrics["episodes"], metrics["distinct_episodes"]) == (16, distinct)

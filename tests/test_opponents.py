@@ -135,7 +135,8 @@ def scipy_grid_field(costmap: np.ndarray, goal: tuple[int, int]) -> np.ndarray:
 )
 def test_dijkstra_field_equals_scipy_and_batching_changes_nothing(layout, controlled):
     env = grid_env(4, layout)
-    opponent = DijkstraOpponent(env, controlled=controlled)
+    # Fixed tie-breaks: a batch of one draws its ties from another stream position than a batch of 256.
+    opponent = DijkstraOpponent(env, controlled=controlled, tie_break="progress")
     state, goal, done = random_grid_states(env, 256, seed=1)
     plan = opponent.plan(state, goal, done)
     for world in range(0, 256, 17):

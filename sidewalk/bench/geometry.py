@@ -54,7 +54,8 @@ class FixedAction(TensorDictModuleBase):
 
 
 def _experiment(opponent: str, algo: str, overrides: Sequence[str]):
-    return compose_experiment(["env=continuous", f"opponent={opponent}", f"algo={algo}", *overrides])
+    # The geometry of the scenario's own starts: what these figures measure (eval=nominal: no jitter).
+    return compose_experiment(["env=continuous", f"opponent={opponent}", f"algo={algo}", "eval=nominal", *overrides])
 
 
 def _outcome(metrics: dict[str, float], opponent: str) -> dict[str, float]:

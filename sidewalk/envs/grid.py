@@ -14,6 +14,7 @@ from sidewalk._checks import check_choice, check_int, check_range
 from sidewalk._torchrl import set_uniform_box
 from sidewalk.envs.base import COSTS, RENDER_MODES, SidewalkEnvBase, new_output
 from sidewalk.envs.layouts import GridLayout, RandomGridLayout, grid_layout, grid_room
+from sidewalk.envs.layouts.jitter import JitteredGridLayout
 from sidewalk.envs.rewards import RewardParams
 from sidewalk.envs.shield import grid_shield
 
@@ -75,6 +76,10 @@ class DiscreteParams:
     layout: str = "sidewalk"  # a registered scenario (sidewalk.envs.layouts.scenario_names())
     n_agents: int = 2  # agents in the scenario (sidewalk and zipper: 2)
     min_start_goal_cells: int = 4  # random layout: least Manhattan distance from an agent's start to its goal
+    # Fixed layouts: each reset moves every start (goal) across the sidewalk by a uniform -k..k rows
+    # (sidewalk.envs.layouts.jitter); 0: the scenario's own cells.
+    start_jitter_rows: int = 0
+    goal_jitter_rows: int = 0
     width_cells: int = 7
     length_cells: int = 15
     noise: float = 0.0  # probability that an agent's action is replaced by a uniformly random one
@@ -89,6 +94,8 @@ class DiscreteParams:
     def __post_init__(self) -> None:
         check_int("n_agents", self.n_agents, 1, 64)
         check_int("min_start_goal_cells", self.min_start_goal_cells, 1)
+        check_int("start_jitter_rows", self.start_jitter_rows, 0)
+        check_int("goal_jitter_rows", self.goal_jitter_rows, 0)
         check_int("width_cells", self.width_cells, 1, 255)
         check_int("length_cells", self.length_cells, 2, 255)
         check_range("noise", self.noise, 0.0, 1.0)
@@ -131,11 +138,16 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
         return grid_room(p.layout, p.n_agents, *given, default=default, min_start_goal_cells=p.min_start_goal_cells)
 
     @staticmethod
-    def layout_for(p: DiscreteParams) -> GridLayout | RandomGridLayout:
-        """The layout that parameters ``p`` describe (raises on a bad scenario name or agent count)."""
-        if isinstance(p.layout, (GridLayout, RandomGridLayout)):
-            return p.layout
-        return grid_layout(p.layout, p.width_cells, p.length_cells, p.n_agents, p.min_start_goal_cells)
+    def layout_for(p: DiscreteParams) -> GridLayout | RandomGridLayout | JitteredGridLayout:
+        """The layout that parameters ``p`` describe (raises on a bad scenario name or agent count, or on jitter
+        bounds that put an agent into a wall)."""
+        if isinstance(p.layout, (GridLayout, RandomGridLayout, JitteredGridLayout)):
+            layout = p.layout
+        else:
+            layout = grid_layout(p.layout, p.width_cells, p.length_cells, p.n_agents, p.min_start_goal_cells)
+        if p.start_jitter_rows or p.goal_jitter_rows:
+            return JitteredGridLayout(layout, p.start_jitter_rows, p.goal_jitter_rows)
+        return layout
 
     def _make_layout(self) -> GridLayout | RandomGridLayout:
         return self.layout_for(self.params)

@@ -14,6 +14,7 @@ from sidewalk._checks import check_choice, check_int, check_range
 from sidewalk.envs.base import COSTS, RENDER_MODES, SidewalkEnvBase, new_output
 from sidewalk.envs.geodesic import GeodesicDistance, blocked
 from sidewalk.envs.layouts import PlaneLayout, RandomPlaneLayout, plane_layout, plane_room
+from sidewalk.envs.layouts.jitter import JitteredPlaneLayout
 from sidewalk.envs.rewards import RewardParams
 from sidewalk.envs.shield import unicycle_shield
 
@@ -36,6 +37,11 @@ class ContinuousParams:
     layout: str = "sidewalk"  # a registered scenario (sidewalk.envs.layouts.scenario_names())
     n_agents: int = 2  # agents in the scenario (sidewalk and zipper: 2)
     min_start_goal_m: float = 1.5  # random layout: least distance from an agent's start to its goal
+    # Fixed layouts: each reset moves every start (goal) by a uniform ±j m in x and y and turns every start heading
+    # by a uniform ±rad (sidewalk.envs.layouts.jitter); 0: the scenario's own.
+    start_jitter_m: float = 0.0
+    goal_jitter_m: float = 0.0
+    heading_jitter_rad: float = 0.0
     length_m: float = 4.0
     width_m: float = 3.0
     agent_radius_m: float = 0.3
@@ -58,6 +64,9 @@ class ContinuousParams:
     def __post_init__(self) -> None:
         check_int("n_agents", self.n_agents, 1, 64)
         check_range("min_start_goal_m", self.min_start_goal_m, 0.0)
+        check_range("start_jitter_m", self.start_jitter_m, 0.0)
+        check_range("goal_jitter_m", self.goal_jitter_m, 0.0)
+        check_range("heading_jitter_rad", self.heading_jitter_rad, 0.0, math.pi)
         check_range("length_m", self.length_m, 0.0, 1000.0, low_open=True)
         check_range("width_m", self.width_m, 0.0, 1000.0, low_open=True)
         check_range("agent_radius_m", self.agent_radius_m, 0.0, min(self.length_m, self.width_m) / 2, low_open=True)
@@ -109,13 +118,20 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
                           goal_radius_m=p.goal_radius_m)
 
     @staticmethod
-    def layout_for(p: ContinuousParams) -> PlaneLayout | RandomPlaneLayout:
-        """The layout that parameters ``p`` describe (raises on a bad scenario name or agent count)."""
-        if isinstance(p.layout, (PlaneLayout, RandomPlaneLayout)):
-            return p.layout
-        return plane_layout(
-            p.layout, p.length_m, p.width_m, p.n_agents, p.agent_radius_m, p.goal_radius_m, p.min_start_goal_m
-        )
+    def layout_for(p: ContinuousParams) -> PlaneLayout | RandomPlaneLayout | JitteredPlaneLayout:
+        """The layout that parameters ``p`` describe (raises on a bad scenario name or agent count, or on jitter
+        bounds that put an agent into a wall)."""
+        if isinstance(p.layout, (PlaneLayout, RandomPlaneLayout, JitteredPlaneLayout)):
+            layout = p.layout
+        else:
+            layout = plane_layout(
+                p.layout, p.length_m, p.width_m, p.n_agents, p.agent_radius_m, p.goal_radius_m, p.min_start_goal_m
+            )
+        if p.start_jitter_m or p.goal_jitter_m or p.heading_jitter_rad:
+            return JitteredPlaneLayout(
+                layout, p.agent_radius_m, p.goal_radius_m, p.start_jitter_m, p.goal_jitter_m, p.heading_jitter_rad
+            )
+        return layout
 
     def _make_layout(self) -> PlaneLayout | RandomPlaneLayout:
         return self.layout_for(self.params)

@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import torch
 
-from sidewalk._checks import check_int, check_range
+from sidewalk._checks import check_choice, check_int, check_range
 from sidewalk.envs.base import SidewalkEnvBase
 from sidewalk.envs.grid import MOVES
 from sidewalk.opponents.base import Opponent
@@ -29,6 +29,9 @@ UNREACHABLE_SCORE = 1e20
 # Tie-breaks between moves of equal path cost (costs are whole numbers, so these sums stay below 1).
 TIE_ALONG = 1e-3  # per cell of distance to the goal along the sidewalk (columns, at most 255)
 TIE_ACROSS = 1e-6  # per cell across it (rows)
+# tie_break="random": equally cheap moves are drawn uniformly, by a score in [0, TIE_RANDOM) each (below one step).
+TIE_RANDOM = 1e-2
+TIE_BREAKS = ("random", "progress")
 OCCUPIED_SCORE = 1e30
 
 
@@ -57,9 +60,19 @@ class DijkstraOpponent(Opponent):
 
     The move taken is the first step of the cheapest path: the neighbour with the least entry cost plus
     distance to goal. It never leaves the grid or enters a blocked cell while another move exists, and never
-    steps into an agent's cell while a free cell is next to it. Ties go to the move that leaves the agent
-    closest to its goal along the sidewalk, then across it. Moves of done agents are computed like any other and
+    steps into an agent's cell while a free cell is next to it. Moves of done agents are computed like any other and
     ignored by the env.
+
+    Ties between equally cheap moves (``tie_break``):
+
+    - ``"random"`` (version 2, the default since 2026-11-28): drawn uniformly, every step, from the env's
+      generator. People caught in a "sidewalk salsa" -- both stepping the same way, back and forth -- break it by
+      hesitating; a planner that breaks ties the same way every time never does: a greedy learner stepping toward it
+      and back held the v1 agent in a two-cycle to the time limit (docs/guide/evaluation.md). Drawing the tie also
+      makes the partner's own randomness a source of distinct evaluation episodes from fixed starts.
+    - ``"progress"`` (version 1, the agent of the reference runs made before): the move that leaves the agent closest
+      to its goal along the sidewalk, then across it -- a fixed order (UP first) had let an ego stepping up and down
+      flip the costmap each step and hold the planner in a livelock.
 
     Every call plans from scratch and keeps no per-world memory, so ``reset(rows)`` has nothing to do.
     ``last_rounds`` holds the number of scan rounds of the last call.
@@ -67,7 +80,7 @@ class DijkstraOpponent(Opponent):
 
     name = "dijkstra"
     domains = ("discrete",)
-    per_replica = False  # no randomness, no per-world memory: one planner for every replica's worlds
+    per_replica = False  # draws only through env.rand, no per-world memory: one planner for every replica's worlds
     batch_invariant = True  # whole-number path costs, exact whatever the batch
 
     def __init__(
@@ -78,13 +91,16 @@ class DijkstraOpponent(Opponent):
         *,
         avoid_radius_cells: int = AVOID_RADIUS_CELLS,
         avoid_cost: float = AVOID_COST,
+        tie_break: str = "random",
     ) -> None:
         super().__init__(env, controlled, ego)
         layout = env.layout
         check_int("avoid_radius_cells", avoid_radius_cells, 0, max(layout.rows, layout.cols))
         check_range("avoid_cost", avoid_cost, 0.0, MAX_AVOID_COST)
+        check_choice("tie_break", tie_break, TIE_BREAKS)
         self.avoid_radius_cells = avoid_radius_cells
         self.avoid_cost = float(avoid_cost)
+        self.tie_break = tie_break
         rows, cols, device = layout.rows, layout.cols, env.device
         self._rows, self._cols = rows, cols
         # More than the dearest path over free cells, which enters at most rows·cols cells.
@@ -177,22 +193,23 @@ class DijkstraOpponent(Opponent):
         score = torch.where(self._legal_padded[neighbour], score.clamp(max=UNREACHABLE_SCORE), float("inf"))
         world = torch.arange(n_worlds, device=device).view(n_worlds, 1)
         score = score.masked_fill(occupied.view(-1)[neighbour * n_worlds + world], OCCUPIED_SCORE)
-        # Among equally cheap moves prefer progress along the sidewalk, then across it: a fixed order (UP first)
-        # let an ego stepping up and down flip the costmap each step and hold this agent in a livelock.
-        neighbour_row = neighbour // padded_cols - 1
-        neighbour_col = neighbour % padded_cols - 1
-        goal_row, goal_col = (
-            goal[:, controlled, 0].t().unsqueeze(-1),
-            goal[:, controlled, 1].t().unsqueeze(-1),
-        )
-        # In float64: float32 has no room for TIE_ACROSS beside path costs of a few units.
-        tie_break = (
-            TIE_ALONG * (neighbour_col - goal_col).abs() + TIE_ACROSS * (neighbour_row - goal_row).abs()
-        )
-        total = score.double() + tie_break.double()
+        total = score.double() + self._tie_break(neighbour, goal).double()
         if n_controlled > 1:
             return cost, field, self._claim_in_turn(total, neighbour, agent_cell[controlled], done[:, controlled])
         return cost, field, total.argmin(-1)
+
+    def _tie_break(self, neighbour: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """Scores below one step added to the moves' (C, B, 4) scores, which decide between equally cheap moves."""
+        if self.tie_break == "random":
+            n_worlds = neighbour.shape[1]
+            return TIE_RANDOM * self.env.rand((n_worlds, *neighbour.shape[::2])).transpose(0, 1)
+        # Progress along the sidewalk, then across it, added to the scores in float64 (the caller's sum): float32
+        # has no room for TIE_ACROSS beside path costs of a few units.
+        controlled = self._controlled_index
+        neighbour_row = neighbour // self._padded_cols - 1
+        neighbour_col = neighbour % self._padded_cols - 1
+        goal_row, goal_col = goal[:, controlled, 0].t().unsqueeze(-1), goal[:, controlled, 1].t().unsqueeze(-1)
+        return TIE_ALONG * (neighbour_col - goal_col).abs() + TIE_ACROSS * (neighbour_row - goal_row).abs()
 
     @staticmethod
     def _claim_in_turn(

@@ -17,8 +17,8 @@ collection policy (``sample=True``). Every learner can be a partner:
   are unchanged by a rotation).
 
 ``check_partner`` runs the checks before any compute (``sidewalk.config.validate`` calls it): the folder holds a
-policy, and it was trained in this domain and scenario with the same observation; noise, rewards, the time limit and
-what happens to crashed agents may differ. Anything else raises ``PartnerMismatch`` naming the differences.
+policy, and it was trained in this domain and scenario with the same observation; noise, rewards, the time limit,
+what happens to crashed agents and how far starts and goals were moved may differ. Anything else raises ``PartnerMismatch`` naming the differences.
 """
 
 from __future__ import annotations
@@ -37,9 +37,10 @@ from sidewalk.opponents.base import ACTION_KEY, Opponent, env_domain
 from sidewalk.symmetry import turn_observation
 
 OBSERVATION_KEY = (AGENT_GROUP, "observation")
-# Settings a partner may have been trained under differently: they change the game's payoffs or noise, not what
-# an observation means or what an action does.
-MAY_DIFFER = ("noise", "rewards", "max_steps", "remove_crashed", "check_actions")
+# Settings a partner may have been trained under differently: they change the game's payoffs, noise or where its
+# episodes start (the jitter of an evaluation protocol), not what an observation means or what an action does.
+MAY_DIFFER = ("noise", "rewards", "max_steps", "remove_crashed", "check_actions", "start_jitter_rows",
+              "goal_jitter_rows", "start_jitter_m", "goal_jitter_m", "heading_jitter_rad")
 GRID_HALF_TURN_ACTIONS = (1, 0, 3, 2)  # UP, DOWN, LEFT, RIGHT turned by half a turn: DOWN, UP, RIGHT, LEFT
 
 
@@ -200,6 +201,7 @@ def role_map(domain: str, env_params: Any, trained: int, plays: int) -> str | No
     if trained == plays:
         return "same"
     layout = _env_class(domain).layout_for(env_params)
+    layout = getattr(layout, "nominal", layout)  # jittered starts: their symmetry is the nominal layout's
     if not layout.fixed:
         return "same"
     if layout.n_agents != 2:

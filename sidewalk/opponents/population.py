@@ -79,10 +79,11 @@ POPULATIONS: dict[str, dict[str, dict[str, Member]]] = {
     },
     "discrete": {
         "training": {
-            "dijkstra_near": Member("dijkstra", {"avoid_radius_cells": 1, "avoid_cost": 5.0}),
+            # The planners of the populations keep fixed tie-breaks (version 1): a member is one style of play.
+            "dijkstra_near": Member("dijkstra", {"avoid_radius_cells": 1, "avoid_cost": 5.0, "tie_break": "progress"}),
             **_TRAINING_CONVENTIONS,
         },
-        "heldout": {"dijkstra": Member("dijkstra"), **_HELDOUT_CONVENTIONS},
+        "heldout": {"dijkstra": Member("dijkstra", {"tie_break": "progress"}), **_HELDOUT_CONVENTIONS},
     },
 }
 

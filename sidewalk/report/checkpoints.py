@@ -66,11 +66,11 @@ def replay(run: Run, episodes: int) -> Replay:
     import torch
 
     from sidewalk.evaluate import run_episodes, summarize
-    from sidewalk.experiment import EVAL_SEED_OFFSET, make_view
+    from sidewalk.experiment import EVAL_SEED_OFFSET, make_eval_view
 
     experiment = load_experiment(run.path)
     seed = experiment.seed + EVAL_SEED_OFFSET
-    env = make_view(experiment, experiment.eval_episodes, seed)
+    env = make_eval_view(experiment)
     policy = load_policy(run.path, experiment, env)
     with torch.no_grad():
         record = run_episodes(

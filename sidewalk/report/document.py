@@ -1,6 +1,7 @@
 """``report.md`` assembled from its sections, and the report's files written: ``report.md``, ``report.csv`` (every
-number in it) and ``curves.csv`` (every plotted point); the figures come from ``sidewalk.report.figures`` and, for
-a cross-play matrix found under the paths, ``sidewalk.report.crossplay``."""
+number in it), ``curves.csv`` (every plotted point) and ``marl_eval.json`` (the runs in marl-eval's layout,
+``sidewalk.report.marl_eval``); the figures come from ``sidewalk.report.figures`` and, for a cross-play matrix found
+under the paths, ``sidewalk.report.crossplay``."""
 
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ from sidewalk.report.conditions import (
 )
 from sidewalk.report.crossplay import crossplay_sections, find_crossplay
 from sidewalk.report.figures import family_sections, paper_figure_section, trajectory_section
+from sidewalk.report.marl_eval import write_marl_eval
 from sidewalk.report.runs import (
     CONFIG,
     METRICS,
@@ -134,6 +136,7 @@ def write_report(
     md += _statistics_section(settings, safety=any(records_safety(c) for c in conditions))
 
     report_md = _write_files(out, md, numbers, curves_rows)
+    write_marl_eval(conditions, out)
     log.info("wrote %s (%d figure(s))", report_md, len(figures))
     return ReportResult(out, report_md, figures, skipped, notes, conditions, crossplay)
 
@@ -189,15 +192,16 @@ def _runs_section(conditions: Sequence[Condition], numbers: NumberLog, out: Path
         "",
         f"Runs are grouped by their config without the seed and bookkeeping keys ({', '.join(BOOKKEEPING_KEYS)}).",
         "",
-        "| id | condition | family | seeds | iterations | frames | distinct episodes |",
-        "| --- | --- | --- | --- | ---: | ---: | --- |",
+        "| id | condition | family | seeds | iterations | frames | evaluation protocol | distinct episodes |",
+        "| --- | --- | --- | --- | ---: | ---: | --- | --- |",
     ]
     for condition in conditions:
         iterations = int(condition.runs[0].metrics["iteration"].iloc[-1])
         frames = int(condition.runs[0].metrics["frames"].iloc[-1])
         md.append(
             f"| {condition.ident} | {condition.label} | {', '.join(condition.families)} | "
-            f"{', '.join(map(str, condition.seeds))} | {iterations} | {frames} | {_distinct_episodes(condition)} |"
+            f"{', '.join(map(str, condition.seeds))} | {iterations} | {frames} | {protocol_text(condition.flat)} | "
+            f"{_distinct_episodes(condition)} |"
         )
         numbers.add("conditions", condition, "", "", "seeds", len(condition.runs), len(condition.runs))
         numbers.add("conditions", condition, "", "", "iterations", iterations, len(condition.runs))
@@ -215,6 +219,25 @@ def _runs_section(conditions: Sequence[Condition], numbers: NumberLog, out: Path
                 f"used `{shown_path(kept, out)}`, left out `{shown_path(left_out, out)}`"
             )
     return md + [""]
+
+
+def protocol_text(flat: dict[str, Any]) -> str:
+    """A run's evaluation protocol as the Conditions table names it: ``perturbed (starts ±1, goals ±1 rows)``,
+    ``nominal``; ``, trained on fixed starts`` where training did not draw its worlds alike."""
+    name = str(flat.get("eval.name", "nominal"))
+    if flat.get("env.domain") == "discrete":
+        bounds = [(what, flat.get(f"eval.{key}", 0)) for what, key in
+                  (("starts", "start_jitter_rows"), ("goals", "goal_jitter_rows"))]
+        parts = [f"{what} ±{value}" for what, value in bounds if value]
+        text = f"{', '.join(parts)} rows" if parts else ""
+    else:
+        bounds = [(what, flat.get(f"eval.{key}", 0.0), unit) for what, key, unit in
+                  (("starts", "start_jitter_m", "m"), ("goals", "goal_jitter_m", "m"),
+                   ("headings", "heading_jitter_rad", "rad"))]
+        text = ", ".join(f"{what} ±{float(value):g} {unit}" for what, value, unit in bounds if value)
+    if text and not flat.get("eval.train_alike", True):
+        text += "; trained on the scenario's own starts"
+    return f"{name} ({text})" if text else name
 
 
 def _distinct_episodes(condition: Condition) -> str:

@@ -24,6 +24,8 @@ class Scenario:
     min_start_goal_cells)``, ``plane_capacity(length_m, width_m, agent_radius_m, goal_radius_m)``) and its own room
     for N agents (``grid_room(n_agents)``, ``plane_room(n_agents, agent_radius_m, goal_radius_m)``), from which an
     env given no size picks its room. ``rank`` orders tables and galleries (the built-ins: the paper's order).
+    ``draws_starts``: its layout draws every world's starts and goals (``random``), so an evaluation protocol's
+    start/goal jitter leaves it as it is.
     """
 
     name: str
@@ -35,6 +37,7 @@ class Scenario:
     plane_room: Callable[..., tuple[float, float]] | None = None
     any_n_agents: bool = False
     rank: int = 100
+    draws_starts: bool = False  # its layout draws starts and goals per world already: no start/goal jitter applies
 
     def __post_init__(self) -> None:
         if self.grid is None and self.plane is None:

@@ -359,4 +359,5 @@ SCENARIO = Scenario(
     plane_room=random_plane_room,
     any_n_agents=True,
     rank=2,
+    draws_starts=True,
 )
