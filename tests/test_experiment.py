@@ -111,6 +111,9 @@ def test_stopped_run_resumes_to_the_same_metrics(tmp_path, uninterrupted_run, se
 
     main_py(*overrides, f"hydra.run.dir={stopped}", "resume=true", timeout=600)
     pd.testing.assert_frame_equal(metrics(stopped), metrics(whole))
+    # The best evaluation's policy is in the checkpoint: the absolute metric is the uninterrupted run's.
+    absolute = [json.loads((run / "summary.json").read_text())["absolute"] for run in (stopped, whole)]
+    assert absolute[0] == absolute[1]
 
 
 def test_resume_refuses_another_config_naming_each_key(tmp_path):
