@@ -78,6 +78,7 @@ COLUMNS = (
     "team_success",
     "return",
     "episodes",
+    "distinct_episodes",
     "skipped",
     "heldout",
 )
@@ -89,6 +90,7 @@ METRICS = {  # CSV column -> key of sidewalk.evaluate's metrics in the row's ego
     "team_success": "team/success_rate",
     "return": "ego/return",
     "episodes": "episodes",
+    "distinct_episodes": "distinct_episodes",  # how many different episodes the cell's worlds played
 }
 
 
@@ -573,7 +575,8 @@ def crossplay(
             if progress is not None:
                 progress(1)
     frame = pd.DataFrame(records, columns=list(COLUMNS))
-    frame["episodes"] = frame["episodes"].astype("Int64")
+    for column in ("episodes", "distinct_episodes"):
+        frame[column] = frame[column].astype("Int64")
     for column in ("row_seed", "partner_seed"):
         frame[column] = frame[column].astype("Int64")
     return frame

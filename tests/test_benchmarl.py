@@ -151,9 +151,9 @@ def test_the_comparison_table_keeps_runs_without_the_state_apart(tmp_path, monke
     from sidewalk.bench import benchmarl_tasks
 
     # A finished run that saw the state: the same run without it is a new row.
-    old = {"algorithm": "mappo", "task": "zipper_continuous", "observation": "vector", "state": True, "seed": 0,
-           "frames": 6000, "wall_s": 1.0, "team_success": 1.0, "deadlock": 0.0, "agent_success": 1.0,
-           "team_success_sampled": 1.0}
+    old = {"algorithm": "mappo", "task": "zipper_continuous", "observation": "vector", "state": True,
+           "protocol": "perturbed", "seed": 0, "frames": 6000, "wall_s": 1.0, "team_success": 1.0, "deadlock": 0.0,
+           "agent_success": 1.0, "team_success_sampled": 1.0, "distinct_episodes": 4}
     pd.DataFrame([old]).to_csv(tmp_path / "benchmarl.csv", index=False)
     seen = []
 
@@ -167,4 +167,27 @@ def test_the_comparison_table_keeps_runs_without_the_state_apart(tmp_path, monke
                                    out=str(tmp_path), eval_episodes=4, state=state)
     assert seen == [False]
     assert sorted((row["state"], row["team_success"]) for row in rows) == [(False, 0.5), (True, 1.0)]
-    assert "| mappo | zipper_continuous | vector | no | 1 |" in benchmarl_tasks.format_rows(rows)
+    assert "| mappo | zipper_continuous | vector | no | perturbed | 1 |" in benchmarl_tasks.format_rows(rows)
+
+
+def test_the_comparison_table_keeps_runs_of_the_paper_s_fixed_starts_apart(tmp_path, monkeypatch):
+    from sidewalk.bench import benchmarl_tasks
+
+    # A row of the table made before the protocol (no protocol column): its worlds started from the fixed starts.
+    old = {"algorithm": "mappo", "task": "zipper_continuous", "observation": "vector", "state": True, "seed": 0,
+           "frames": 6000, "wall_s": 1.0, "team_success": 1.0, "deadlock": 0.0, "agent_success": 1.0,
+           "team_success_sampled": 1.0}
+    pd.DataFrame([old]).to_csv(tmp_path / "benchmarl.csv", index=False)
+    trained = []
+
+    def fake_run(algorithm, task, seed, frames, out, eval_episodes, grid_observation, state):
+        trained.append(task)
+        return {**old, "protocol": "perturbed", "team_success": 0.5, "distinct_episodes": 200}
+
+    monkeypatch.setattr(benchmarl_tasks, "train_and_evaluate", fake_run)
+    rows = benchmarl_tasks.run(algorithms=["mappo"], tasks=["zipper_continuous"], seeds=[0], frames=6000,
+                               out=str(tmp_path), eval_episodes=4)
+    assert trained == ["zipper_continuous"]  # the task's worlds are perturbed now: a new row
+    table = benchmarl_tasks.format_rows(rows)
+    assert "| nominal | 1 | 6,000 | 1 | 1.00 (1.00) | 1.00 | 0.00 | – |" in table
+    assert "| perturbed | 1 | 6,000 | 1 | 0.50 (0.50) | 1.00 | 0.00 | 200–200 |" in table

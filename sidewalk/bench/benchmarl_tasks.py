@@ -35,8 +35,17 @@ ALGORITHM_CONFIGS = {
     "mappo": "MappoConfig", "ippo": "IppoConfig", "masac": "MasacConfig", "isac": "IsacConfig",
     "maddpg": "MaddpgConfig", "iddpg": "IddpgConfig", "iql": "IqlConfig", "vdn": "VdnConfig", "qmix": "QmixConfig",
 }
-COLUMNS = ["algorithm", "task", "observation", "state", "seed", "frames", "wall_s", "team_success", "deadlock",
-           "agent_success", "team_success_sampled"]
+COLUMNS = ["algorithm", "task", "observation", "state", "protocol", "seed", "frames", "wall_s", "team_success",
+           "deadlock", "agent_success", "team_success_sampled", "distinct_episodes"]
+JITTER_KEYS = ("start_jitter_rows", "goal_jitter_rows", "start_jitter_m", "goal_jitter_m", "heading_jitter_rad")
+
+
+def task_protocol(task_config: dict[str, Any]) -> str:
+    """How a task's worlds differ (docs/guide/evaluation.md): ``perturbed`` where its env moves starts or goals (the
+    tasks' configs give the perturbed protocol's bounds since 2026-11-28), else ``nominal``. Rows of a table made
+    before have no protocol: they were nominal."""
+    env = task_config.get("env") or {}
+    return "perturbed" if any(env.get(key) for key in JITTER_KEYS) else "nominal"
 
 
 def parse_options(argv: list[str]) -> dict[str, Any]:
@@ -119,10 +128,11 @@ def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int, o
     observation = "image" if images else "vector"
     name = f"{algorithm}_{task_name}_{observation}{'' if state else '_nostate'}_seed{seed}.pt"
     torch.save(experiment.policy.state_dict(), out / "runs" / name)
-    return {"algorithm": algorithm, "task": task_name, "observation": observation, "state": state, "seed": seed,
-            "frames": experiment.total_frames, "wall_s": round(wall_s, 1), "team_success": metrics["team/success_rate"],
+    return {"algorithm": algorithm, "task": task_name, "observation": observation, "state": state,
+            "protocol": task_protocol(task.config), "seed": seed, "frames": experiment.total_frames,
+            "wall_s": round(wall_s, 1), "team_success": metrics["team/success_rate"],
             "deadlock": metrics["deadlock_rate"], "agent_success": metrics["success_rate"],
-            "team_success_sampled": sampled["team/success_rate"]}
+            "team_success_sampled": sampled["team/success_rate"], "distinct_episodes": metrics["distinct_episodes"]}
 
 
 class _Sampling(TensorDictModuleBase):
@@ -147,10 +157,14 @@ def run(algorithms: list[str] | None = None, tasks: list[str] | None = None, see
     out_dir.mkdir(parents=True, exist_ok=True)
     table_path = out_dir / "benchmarl.csv"
     table = pd.read_csv(table_path) if table_path.exists() else pd.DataFrame(columns=COLUMNS)
+    table["protocol"] = table["protocol"].fillna("nominal") if "protocol" in table else "nominal"
     for algorithm, task, seed in planned_runs(algorithms, tasks, list(seeds)):
+        from sidewalk.interop.benchmarl import SidewalkTask
+
         observation = grid_observation if task.endswith("discrete") else "vector"
+        protocol = task_protocol(SidewalkTask[task.upper()].get_from_yaml().config)
         same = (table.algorithm == algorithm) & (table.task == task) & (table.seed == seed) & (
-            table.observation == observation) & (table.state == state)
+            table.observation == observation) & (table.state == state) & (table.protocol == protocol)
         if (table[same].frames >= frames).any():
             continue
         print(f"benchmarl: {algorithm} on sidewalk/{task} ({observation}{'' if state else ', no state'}), seed {seed}, "
@@ -166,16 +180,20 @@ def format_rows(rows: list[dict[str, Any]]) -> str:
     if not rows:
         return "(no runs)"
     table = pd.DataFrame(rows)
-    header = ("algorithm", "task", "observation", "state", "seeds", "frames", "wall-clock (s, mean)",
-              "team success, greedy (per seed)", "team success, sampled (mean)", "deadlock (mean)")
+    table["protocol"] = table["protocol"].fillna("nominal") if "protocol" in table else "nominal"
+    header = ("algorithm", "task", "observation", "state", "protocol", "seeds", "frames", "wall-clock (s, mean)",
+              "team success, greedy (per seed)", "team success, sampled (mean)", "deadlock (mean)",
+              "distinct episodes")
     lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
-    setting = ["algorithm", "task", "observation", "state"]
-    for (algorithm, task, observation, state), group in table.groupby(setting, sort=False):
+    setting = ["algorithm", "task", "observation", "state", "protocol"]
+    for (algorithm, task, observation, state, protocol), group in table.groupby(setting, sort=False):
         per_seed = ", ".join(f"{value:.2f}" for value in group.sort_values("seed").team_success)
-        lines.append(f"| {algorithm} | {task} | {observation} | {'yes' if state else 'no'} | {len(group)} "
-                     f"| {int(group.frames.mean()):,} | {group.wall_s.mean():.0f} "
+        distinct = group["distinct_episodes"].dropna() if "distinct_episodes" in group else pd.Series(dtype=float)
+        distinct_text = f"{int(distinct.min())}–{int(distinct.max())}" if len(distinct) else "–"
+        lines.append(f"| {algorithm} | {task} | {observation} | {'yes' if state else 'no'} | {protocol} "
+                     f"| {len(group)} | {int(group.frames.mean()):,} | {group.wall_s.mean():.0f} "
                      f"| {group.team_success.mean():.2f} ({per_seed}) "
-                     f"| {group.team_success_sampled.mean():.2f} | {group.deadlock.mean():.2f} |")
+                     f"| {group.team_success_sampled.mean():.2f} | {group.deadlock.mean():.2f} | {distinct_text} |")
     return "\n".join(lines)
 
 

@@ -5,6 +5,7 @@ shows, written by hand). Reads files only: no learner, no torch."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import math
@@ -21,8 +22,8 @@ from matplotlib.patches import Rectangle
 
 from sidewalk.report.figures import _save, slug
 from sidewalk.report.runs import shown_path
-from sidewalk.report.tables import NumberLog, fmt
-from sidewalk.stats import interval_estimate
+from sidewalk.report.tables import NumberLog, fmt, interval_text
+from sidewalk.stats import Interval, interval_estimate, probability_of_improvement, separation_text
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +32,8 @@ CROSSPLAY_JSON = "crossplay.json"
 CONVENTIONS_CSV = "conventions.csv"  # the convention each row's policy follows with itself (sidewalk.crossplay.convention)
 NOTES = "notes.md"  # what the matrix shows, written by hand beside the CSV
 ADHOC_CSV = "adhoc.csv"  # the ad-hoc score of each condition (adhoc_table), beside the matrix
-ADHOC_COLUMNS = ("condition", "runs", "partners", "iqm", "low", "high", "mean", "note")
+ADHOC_COLUMNS = ("condition", "runs", "partners", "iqm", "low", "high", "mean", "distinct_low", "distinct_high",
+                 "note")
 REPORT = "report.md"
 # Heatmaps: CSV column -> (title, colour map); every value is a rate in [0, 1].
 HEATMAP_METRICS = {
@@ -136,18 +138,46 @@ def adhoc_table(frame: pd.DataFrame) -> pd.DataFrame | None:
     None when the matrix has no held-out partner (``--partners heldout``)."""
     if "heldout" not in frame or not frame["heldout"].astype(bool).any():
         return None
-    used = frame[frame["heldout"].astype(bool) & (frame["skipped"] == "")]
     records = []
-    for label in _ordered(used["row_label"]):
-        group = used[used["row_label"] == label]
-        scores = group.pivot_table(index="row_run", columns="partner", values="team_success", aggfunc="mean")
+    used = _heldout(frame)
+    for label, scores in adhoc_scores(frame).items():
         interval = interval_estimate(scores.to_numpy(dtype=float), "iqm")
+        # A matrix made before distinct episodes were recorded has no such column.
+        distinct = used.loc[used["row_label"] == label].get("distinct_episodes")
+        known = distinct.dropna() if distinct is not None else pd.Series(dtype=float)
         records.append({
             "condition": label, "runs": len(scores), "partners": scores.shape[1], "iqm": interval.point,
             "low": interval.low, "high": interval.high, "mean": float(np.nanmean(scores.to_numpy(dtype=float))),
-            "note": interval.note,
+            "distinct_low": int(known.min()) if len(known) else None,
+            "distinct_high": int(known.max()) if len(known) else None, "note": interval.note,
         })
     return pd.DataFrame(records, columns=list(ADHOC_COLUMNS))
+
+
+def _heldout(frame: pd.DataFrame) -> pd.DataFrame:
+    return frame[frame["heldout"].astype(bool) & (frame["skipped"] == "")]
+
+
+def adhoc_scores(frame: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """Each condition's team success with the held-out partners: runs × partners (a partner is a task)."""
+    used = _heldout(frame)
+    return {
+        label: used[used["row_label"] == label].pivot_table(index="row_run", columns="partner",
+                                                             values="team_success", aggfunc="mean")
+        for label in _ordered(used["row_label"])
+    }
+
+
+def adhoc_comparisons(frame: pd.DataFrame) -> list[tuple[str, str, Interval]]:
+    """P(A > B) of every ordered pair of conditions over their held-out scores (``probability_of_improvement``, the
+    partners as tasks: each partner's runs resampled on their own), for the partners both were played with."""
+    scores = adhoc_scores(frame)
+    pairs = []
+    for first, second in itertools.permutations(scores, 2):
+        shared = [partner for partner in scores[first].columns if partner in scores[second].columns]
+        pairs.append((first, second, probability_of_improvement(scores[first][shared].to_numpy(dtype=float),
+                                                                scores[second][shared].to_numpy(dtype=float))))
+    return pairs
 
 
 def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None) -> list[str]:
@@ -165,15 +195,32 @@ def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None) -> li
             "stratified-bootstrap interval over runs (seeds)."
         ),
         "",
-        "| condition | runs | partners | IQM | 95 % interval | mean |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| condition | runs | partners | IQM | 95 % interval | mean | distinct episodes a cell |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in table.itertuples():
         interval = f"[{fmt(r.low)}, {fmt(r.high)}]" if not math.isnan(r.low) else r.note
-        md.append(f"| {r.condition} | {r.runs} | {r.partners} | {fmt(r.iqm)} | {interval} | {fmt(r.mean)} |")
+        distinct = "–" if pd.isna(r.distinct_low) else (
+            f"{int(r.distinct_low)}" if r.distinct_low == r.distinct_high else f"{int(r.distinct_low)}–{int(r.distinct_high)}")
+        md.append(f"| {r.condition} | {r.runs} | {r.partners} | {fmt(r.iqm)} | {interval} | {fmt(r.mean)} | "
+                  f"{distinct} |")
         if numbers is not None:
             numbers.add("crossplay", None, f"row: {r.condition}; partners: held-out population", "team_success",
                         "iqm", float(r.iqm), int(r.runs), "ad-hoc score: IQM over runs × held-out partners")
+    comparisons = adhoc_comparisons(frame)
+    if comparisons:
+        md += [
+            "",
+            ("Which condition plays better with partners never met: P(A > B), the chance that a run of A ends a "
+             "held-out partner's cell with higher team success than a run of B with the same partner (ties half; "
+             "rliable's probability of improvement, the partners as tasks), with its 95 % stratified-bootstrap "
+             "interval; it separates A from B when the interval excludes 0.5."),
+            "",
+            "| A | B | P(A > B) [95 % interval] | separation |",
+            "| --- | --- | --- | --- |",
+        ]
+        for first, second, interval in comparisons:
+            md.append(f"| {first} | {second} | {interval_text(interval)} | {separation_text(interval, 0.5)} |")
     return md + [""]
 
 
