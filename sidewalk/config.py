@@ -213,12 +213,15 @@ def _check_pairing(cfg: DictConfig) -> tuple[str, str, str]:
 
 def _check_protocol(cfg: DictConfig, domain: str, env_params: Any) -> EvalSchema:
     """The evaluation protocol, its bounds checked against the scenario's walls (the env raises naming the largest
-    bound that keeps every agent off them)."""
+    bound that keeps every agent off them), before the training world's check: with ``eval.train_alike`` training
+    takes the same bounds, and the user gave them as ``eval.*``."""
     protocol = OmegaConf.to_object(cfg.eval) if OmegaConf.get_type(cfg.eval) is EvalSchema else EvalSchema(**cfg.eval)
     env_cls = DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
     try:
         env_cls.layout_for(protocol_env_params(protocol, domain, env_params))
     except ValueError as error:
+        if not str(error).startswith(PROTOCOL_ENV_FIELDS[domain]):
+            raise  # the scenario itself cannot be built: the message names what is wrong with it
         raise ValueError(f"eval={protocol.name}: eval.{error}") from None
     return protocol
 
