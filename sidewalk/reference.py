@@ -45,8 +45,9 @@ WALL_CLOCK = ("time_s", "frames_per_s")
 # A probe: seed 0 alone, one evaluation of 16 episodes at its end, no checkpoint, nothing logged.
 PROBE_OVERRIDES = ("seed=0", "replicas=1", "eval_episodes=16", "checkpoint_every=0", "logger=none")
 PROBE_ITERATIONS = 2  # after an off-policy learner's first update (learning_starts)
-# Values that differ by less than this (relative) are the same number rounded by another CPU's kernels.
-ROUNDING = 1e-6
+# Values that differ by less than this (relative) are the same number rounded by another CPU's kernels: two x86 kinds
+# of CI machine differ by up to 6.4e-4 (a PPO's explained variance) over a probe's iterations.
+ROUNDING = 2e-3
 KEPT_TRAIN = ("success", "collision", "return", "cost", "episodes", "shield", "length")
 
 
@@ -152,7 +153,28 @@ def _compare_tables(old: pd.DataFrame, new: pd.DataFrame) -> tuple[bool, str]:
         return True, "identical"
     if gap <= ROUNDING:
         return True, f"equal within rounding (largest relative difference {gap:.1e}, {column})"
+    if _one_episode_diverged(old, new):
+        return True, (f"training equal within rounding; the evaluation's one distinct episode ended otherwise ({column} "
+                      f"at iteration {iteration}: recorded {x:.6g}, today {y:.6g})")
     return False, f"{column} at iteration {iteration}: recorded {x:.6g}, today {y:.6g}"
+
+
+def _one_episode_diverged(old: pd.DataFrame, new: pd.DataFrame) -> bool:
+    """Whether every difference beyond rounding lies in evaluations that played one distinct episode in both probes,
+    after training that agrees within rounding: one long deterministic trajectory carries a CPU's rounding to another
+    outcome (a collision at step 263 instead of a timeout at 300), which no tolerance on the numbers absorbs."""
+    distinct, counts = "eval/distinct_episodes", ("eval/distinct_episodes", "eval/episodes")
+    if distinct not in old.columns:
+        return False
+    for column in old.columns:
+        a, b = old[column].to_numpy(dtype=float), new[column].to_numpy(dtype=float)
+        for row, (x, y) in enumerate(zip(a, b)):
+            if (math.isnan(x) and math.isnan(y)) or x == y or abs(x - y) <= ROUNDING * max(abs(x), abs(y)):
+                continue
+            if not column.startswith("eval/") or column in counts or not old[distinct].iloc[row] == \
+                    new[distinct].iloc[row] == 1:
+                return False
+    return True
 
 
 # ---- reference folders ---------------------------------------------------------------------------------------------

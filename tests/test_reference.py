@@ -71,9 +71,26 @@ def test_a_change_in_what_a_job_computes_is_caught_and_named():
     assert not changed.same and changed.detail == "eval/ego/return at iteration 2: recorded 0.7, today 0.8"
     assert "no longer written" in compare(recorded, today.drop(columns="eval/ego/return"))[0].detail
     assert compare(recorded, recorded.assign(**{"eval/distinct_episodes": 1.0}))[0].same  # a metric added since
+    today.loc[1, "eval/ego/return"] = 0.7 * (1 + 1e-3)  # two CI machines' kernels, over a probe's iterations
+    assert compare(recorded, today)[0].same
     table = status_table([(Reference(REFERENCE_ROOT, {"commit": "0" * 40, "jobs": {"a": [], "b": []}}), [changed])])
     assert "**no**: `a`: eval/ego/return" in table
     assert "**0 of 2**: its report still shows the runs of an earlier commit" in table
+
+
+def test_one_deterministic_episode_that_ends_otherwise_is_rounding_only_after_the_same_training():
+    """At noise 0 the evaluation plays one episode 16 times: 300 steps of a shielded policy carry a CPU's rounding
+    to a collision instead of a timeout (seen between two CI machines), which is not a change of the code."""
+    recorded = pd.DataFrame({"job": ["a", "a"], "iteration": [1, 2], "train/kl": [0.0077, 0.0064],
+                             "eval/distinct_episodes": [None, 1.0], "eval/episodes": [None, 16.0],
+                             "eval/ego/collision_rate": [None, 0.0], "eval/ego/episode_length": [None, 300.0]})
+    diverged = recorded.assign(**{"eval/ego/collision_rate": [None, 1.0], "eval/ego/episode_length": [None, 263.0]})
+    (result,) = compare(recorded, diverged)
+    assert result.same and result.detail.startswith("training equal within rounding; the evaluation's one distinct")
+    assert not compare(recorded, diverged.assign(**{"train/kl": [0.0077, 0.0070]}))[0].same  # training moved too
+    assert not compare(recorded, diverged.assign(**{"eval/episodes": [None, 32.0]}))[0].same  # another protocol
+    many = {"eval/distinct_episodes": [None, 16.0]}  # 16 worlds: a rate moves by a share, not by rounding
+    assert not compare(recorded.assign(**many), diverged.assign(**many))[0].same
 
 
 def test_collected_runs_read_back_as_the_runs(tmp_path):
