@@ -632,6 +632,8 @@ def run_crossplay(
         "domain": domain,
         "layout": world.layout,
         "noise": world.noise,
+        # The starts, goals and headings each world draws (eval=perturbed's bounds where the rows trained under it).
+        "jitter": {f.name: getattr(world, f.name) for f in dataclasses.fields(world) if "jitter" in f.name},
         "episodes": episodes,
         "seed": seed,
         "world_seed": seed + EVAL_SEED_OFFSET,

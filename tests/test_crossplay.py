@@ -170,6 +170,9 @@ def test_the_runner_writes_the_same_csv_for_the_same_seed_with_figures_and_repor
     assert (out / "crossplay.csv").read_bytes() == (tmp_path / "b" / "crossplay.csv").read_bytes()
     meta = json.loads((out / "crossplay.json").read_text())
     assert meta["world_seed"] == 5 + EVAL_SEED_OFFSET and meta["noise"] == 0.2 and meta["episodes"] == 4
+    trained = OmegaConf.load(runs["dqn_dijkstra_s0"] / "config.yaml").env  # eval=perturbed: the rows' worlds moved
+    assert meta["jitter"] == {"start_jitter_rows": trained.start_jitter_rows, "goal_jitter_rows": trained.goal_jitter_rows}
+    assert meta["jitter"]["start_jitter_rows"] >= 1
     assert meta["command"].startswith("python runners/crossplay.py ") and "--seed 5" in meta["command"]
     figures = sorted(path.name for path in (out / "figures").glob("*.png"))
     assert figures == sorted(
@@ -181,6 +184,7 @@ def test_the_runner_writes_the_same_csv_for_the_same_seed_with_figures_and_repor
     assert set(conventions["passing_side"]) <= {"left", "right", "none"}
     report = (out / "report.md").read_text()
     assert "## Cross-play" in report and meta["command"] in report and "Not written yet" in report
+    assert f"start_jitter_rows ±{meta['jitter']['start_jitter_rows']}" in report
     assert "### Conventions" in report
     assert "| dqn vs dijkstra | " in report and "(figures/crossplay_by_condition_success.png)" in report
     (out / "notes.md").write_text("Seeds of one condition coordinate with each other.")

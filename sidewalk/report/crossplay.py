@@ -318,7 +318,8 @@ def _how_it_was_made(frame: pd.DataFrame, meta: dict[str, Any], out: Path, folde
     if meta.get("command"):
         md += ["Made by:", "", "```", meta["command"], "```", ""]
     world = ", ".join(
-        f"{key} {meta[key]}" for key in ("domain", "layout", "noise") if key in meta
+        [f"{key} {meta[key]}" for key in ("domain", "layout", "noise") if key in meta]
+        + [f"{key} ±{value:g}" for key, value in meta.get("jitter", {}).items() if value]
     )
     md += [
         (
