@@ -189,7 +189,8 @@ def format_rows(rows: list[dict[str, Any]]) -> str:
     for (algorithm, task, observation, state, protocol), group in table.groupby(setting, sort=False):
         per_seed = ", ".join(f"{value:.2f}" for value in group.sort_values("seed").team_success)
         distinct = group["distinct_episodes"].dropna() if "distinct_episodes" in group else pd.Series(dtype=float)
-        distinct_text = f"{int(distinct.min())}–{int(distinct.max())}" if len(distinct) else "–"
+        low, high = (int(distinct.min()), int(distinct.max())) if len(distinct) else (0, 0)
+        distinct_text = "–" if not len(distinct) else str(low) if low == high else f"{low}–{high}"
         lines.append(f"| {algorithm} | {task} | {observation} | {'yes' if state else 'no'} | {protocol} "
                      f"| {len(group)} | {int(group.frames.mean()):,} | {group.wall_s.mean():.0f} "
                      f"| {group.team_success.mean():.2f} ({per_seed}) "
