@@ -27,7 +27,7 @@ import math
 import shutil
 import sys
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -139,42 +139,39 @@ def _compare_tables(old: pd.DataFrame, new: pd.DataFrame) -> tuple[bool, str]:
     new = new[old.columns]  # a metric added since adds to what a job reports, not to what it computes
     if len(old) != len(new):
         return False, f"{len(new)} iterations where the probe recorded {len(old)}"
-    worst = (0.0, "", 0, 0.0, 0.0)
+    differences = list(_differences(old, new))
+    if not differences:
+        return True, "identical"
+    gap, column, iteration, x, y = max(differences, key=lambda difference: difference[0])
+    if gap <= ROUNDING:
+        return True, f"equal within rounding (largest relative difference {gap:.1e}, {column})"
+    if _one_episode_diverged(old, new, [difference for difference in differences if difference[0] > ROUNDING]):
+        return True, (f"training equal within rounding; the evaluation's one distinct episode ended otherwise ({column} "
+                      f"at iteration {iteration}: recorded {x:.6g}, today {y:.6g})")
+    return False, f"{column} at iteration {iteration}: recorded {x:.6g}, today {y:.6g}"
+
+
+def _differences(old: pd.DataFrame, new: pd.DataFrame) -> Iterator[tuple[float, str, int, float, float]]:
+    """Every value that differs, in the table's order: (relative gap, column, iteration, recorded, today)."""
     for column in old.columns:
         a, b = old[column].to_numpy(dtype=float), new[column].to_numpy(dtype=float)
         for row, (x, y) in enumerate(zip(a, b)):
             if (math.isnan(x) and math.isnan(y)) or x == y:
                 continue
             gap = math.inf if math.isnan(x) or math.isnan(y) else abs(x - y) / max(abs(x), abs(y), 1e-12)
-            if gap > worst[0]:
-                worst = (gap, column, row + 1, x, y)
-    gap, column, iteration, x, y = worst
-    if gap == 0.0:
-        return True, "identical"
-    if gap <= ROUNDING:
-        return True, f"equal within rounding (largest relative difference {gap:.1e}, {column})"
-    if _one_episode_diverged(old, new):
-        return True, (f"training equal within rounding; the evaluation's one distinct episode ended otherwise ({column} "
-                      f"at iteration {iteration}: recorded {x:.6g}, today {y:.6g})")
-    return False, f"{column} at iteration {iteration}: recorded {x:.6g}, today {y:.6g}"
+            yield gap, column, row + 1, x, y
 
 
-def _one_episode_diverged(old: pd.DataFrame, new: pd.DataFrame) -> bool:
+def _one_episode_diverged(old: pd.DataFrame, new: pd.DataFrame, beyond_rounding: list[tuple]) -> bool:
     """Whether every difference beyond rounding lies in evaluations that played one distinct episode in both probes,
     after training that agrees within rounding: one long deterministic trajectory carries a CPU's rounding to another
     outcome (a collision at step 263 instead of a timeout at 300), which no tolerance on the numbers absorbs."""
     distinct, counts = "eval/distinct_episodes", ("eval/distinct_episodes", "eval/episodes")
-    if distinct not in old.columns:
-        return False
-    for column in old.columns:
-        a, b = old[column].to_numpy(dtype=float), new[column].to_numpy(dtype=float)
-        for row, (x, y) in enumerate(zip(a, b)):
-            if (math.isnan(x) and math.isnan(y)) or x == y or abs(x - y) <= ROUNDING * max(abs(x), abs(y)):
-                continue
-            if not column.startswith("eval/") or column in counts or not old[distinct].iloc[row] == \
-                    new[distinct].iloc[row] == 1:
-                return False
-    return True
+    return distinct in old.columns and all(
+        column.startswith("eval/") and column not in counts
+        and old[distinct].iloc[iteration - 1] == new[distinct].iloc[iteration - 1] == 1
+        for _, column, iteration, _, _ in beyond_rounding
+    )
 
 
 # ---- reference folders ---------------------------------------------------------------------------------------------
