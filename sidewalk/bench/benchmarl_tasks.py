@@ -177,6 +177,8 @@ def run(algorithms: list[str] | None = None, tasks: list[str] | None = None, see
 
 def format_rows(rows: list[dict[str, Any]]) -> str:
     """Mean over seeds of each setting, with the seeds' values: the docs' table."""
+    from sidewalk.report.tables import distinct_range
+
     if not rows:
         return "(no runs)"
     table = pd.DataFrame(rows)
@@ -188,13 +190,11 @@ def format_rows(rows: list[dict[str, Any]]) -> str:
     setting = ["algorithm", "task", "observation", "state", "protocol"]
     for (algorithm, task, observation, state, protocol), group in table.groupby(setting, sort=False):
         per_seed = ", ".join(f"{value:.2f}" for value in group.sort_values("seed").team_success)
-        distinct = group["distinct_episodes"].dropna() if "distinct_episodes" in group else pd.Series(dtype=float)
-        low, high = (int(distinct.min()), int(distinct.max())) if len(distinct) else (0, 0)
-        distinct_text = "–" if not len(distinct) else str(low) if low == high else f"{low}–{high}"
+        distinct = distinct_range(group.get("distinct_episodes", []))
         lines.append(f"| {algorithm} | {task} | {observation} | {'yes' if state else 'no'} | {protocol} "
                      f"| {len(group)} | {int(group.frames.mean()):,} | {group.wall_s.mean():.0f} "
                      f"| {group.team_success.mean():.2f} ({per_seed}) "
-                     f"| {group.team_success_sampled.mean():.2f} | {group.deadlock.mean():.2f} | {distinct_text} |")
+                     f"| {group.team_success_sampled.mean():.2f} | {group.deadlock.mean():.2f} | {distinct} |")
     return "\n".join(lines)
 
 

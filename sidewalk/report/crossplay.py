@@ -22,7 +22,7 @@ from matplotlib.patches import Rectangle
 
 from sidewalk.report.figures import _save, slug
 from sidewalk.report.runs import shown_path
-from sidewalk.report.tables import NumberLog, fmt, interval_text
+from sidewalk.report.tables import NumberLog, distinct_range, fmt, interval_text
 from sidewalk.stats import Interval, interval_estimate, probability_of_improvement, separation_text
 
 log = logging.getLogger(__name__)
@@ -200,10 +200,8 @@ def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None) -> li
     ]
     for r in table.itertuples():
         interval = f"[{fmt(r.low)}, {fmt(r.high)}]" if not math.isnan(r.low) else r.note
-        distinct = "–" if pd.isna(r.distinct_low) else (
-            f"{int(r.distinct_low)}" if r.distinct_low == r.distinct_high else f"{int(r.distinct_low)}–{int(r.distinct_high)}")
         md.append(f"| {r.condition} | {r.runs} | {r.partners} | {fmt(r.iqm)} | {interval} | {fmt(r.mean)} | "
-                  f"{distinct} |")
+                  f"{distinct_range([r.distinct_low, r.distinct_high])} |")
         if numbers is not None:
             numbers.add("crossplay", None, f"row: {r.condition}; partners: held-out population", "team_success",
                         "iqm", float(r.iqm), int(r.runs), "ad-hoc score: IQM over runs × held-out partners")

@@ -38,7 +38,7 @@ from sidewalk.report.runs import (
     load_run,
     shown_path,
 )
-from sidewalk.report.tables import NumberLog, Settings, records_safety
+from sidewalk.report.tables import NumberLog, Settings, distinct_range, records_safety
 
 log = logging.getLogger(__name__)
 
@@ -245,9 +245,8 @@ def _distinct_episodes(condition: Condition) -> str:
     counts = [run.summary.get("distinct_episodes") for run in condition.runs]
     if any(count is None for count in counts):
         return "–"
-    low, high = int(min(counts)), int(max(counts))
     worlds = int(max(run.summary.get("episodes", 0) for run in condition.runs))
-    return f"{low} of {worlds}" if low == high else f"{low}–{high} of {worlds}"
+    return f"{distinct_range(counts)} of {worlds}"
 
 
 def _skipped_section(skipped: Sequence[Skipped]) -> list[str]:

@@ -5,7 +5,7 @@ table of final values."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -306,6 +306,15 @@ class NumberLog:
 
 def fmt(value: float, digits: int = 3) -> str:
     return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
+
+
+def distinct_range(counts: Iterable[float | None]) -> str:
+    """Several evaluations' distinct episodes as ``N`` where they agree, else ``low–high`` ("–": none recorded)."""
+    known = [int(count) for count in counts if count is not None and not math.isnan(count)]
+    if not known:
+        return "–"
+    low, high = min(known), max(known)
+    return str(low) if low == high else f"{low}–{high}"
 
 
 # A learner that rarely collides pays a cost every thousand frames or fewer: fixed decimals would print 0.000.
