@@ -52,12 +52,9 @@ def main(cfg: DictConfig) -> float | None:
             check_partner_of(experiment)
             # One writer per folder, taken before the folder is read: a second process is refused here.
             held.enter_context(run_folder.writer_lock(run_dir))
-            if experiment.replicas > 1:
-                from sidewalk.group import check_group
+            from sidewalk.experiment import check_folders
 
-                check_group(run_dir, experiment, config)
-            else:
-                run_folder.check(run_dir, config, experiment.resume)
+            check_folders(run_dir, experiment, config)
         except run_folder.FolderInUse as error:
             refuse(error, in_sweep, run_dir.with_name(f"{run_dir.name}.{ERROR_FILE}"))  # not its folder
             return None
@@ -85,12 +82,11 @@ def refuse(error: Exception, in_sweep: bool, error_file: Path) -> None:
 
 def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | None:
     """Run the trial and print its headline figures (and write its plots, outside a sweep)."""
-    from sidewalk.experiment import LearnerDiverged, RunInterrupted, Trial
+    from sidewalk.experiment import Trial
+    from sidewalk.stops import LearnerDiverged, RunInterrupted
 
     try:
-        if experiment.replicas > 1:
-            return train_group(experiment, run_dir, config, in_sweep)
-        summary = Trial(experiment, run_dir, config).run()
+        summaries = Trial(experiment, run_dir, config).run()
     except RunInterrupted as stopped:
         print(f"\n{stopped}", file=sys.stderr)
         sys.exit(128 + stopped.signum)
@@ -106,28 +102,16 @@ def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | No
         # A failing job keeps its error in its own folder and lets the other jobs run; SweepStatus exits 1 at the end.
         (run_dir / ERROR_FILE).write_text(traceback.format_exc())
         return None
-    print(f"\nrun folder: {run_dir}")
-    for key in HEADLINE:
-        if key in summary:
-            print(f"  {key:22s} {summary[key]:.3f}")
-    print(f"  {'wall_clock_s':22s} {summary['wall_clock_s']:.1f}")
-    if not in_sweep:  # a sweep's runs are reported together: runners/report.py <sweep folder>
-        write_plots(run_dir)
-    return summary.get("ego/success_rate", summary.get("team/success_rate"))
-
-
-def train_group(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | None:
-    """``replicas=R``: the R seeds trained in this process (``sidewalk.group``), each in its run folder; prints each
-    replica's headline and writes one report over them (outside a sweep). Errors propagate to ``train``."""
-    from sidewalk.group import GroupTrial, replica_dir
-
-    summaries = GroupTrial(experiment, run_dir, config).run()
-    print(f"\ngroup folder: {run_dir} ({len(summaries)} replicas)")
+    summaries = summaries if isinstance(summaries, list) else [summaries]
+    print(f"\nrun folder: {run_dir}" + (f" ({len(summaries)} seeds)" if len(summaries) > 1 else ""))
     for summary in summaries:
-        headline = ", ".join(f"{key} {summary[key]:.3f}" for key in HEADLINE[:1] + ("team/success_rate",)
-                             if key in summary)
-        print(f"  {replica_dir(run_dir, summary['seed'])}: {headline}, wall_clock_s {summary['wall_clock_s']:.1f}")
-    if not in_sweep:
+        if len(summaries) > 1:
+            print(f"  seed {summary['seed']}:")
+        for key in HEADLINE:
+            if key in summary:
+                print(f"  {key:22s} {summary[key]:.3f}")
+        print(f"  {'wall_clock_s':22s} {summary['wall_clock_s']:.1f}")
+    if not in_sweep:  # a sweep's runs are reported together: runners/report.py <sweep folder>
         write_plots(run_dir)
     successes = [summary.get("ego/success_rate", summary.get("team/success_rate")) for summary in summaries]
     return sum(successes) / len(successes) if None not in successes else None

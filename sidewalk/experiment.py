@@ -23,6 +23,8 @@ turn non-finite stops the run before anything is written from it (``LearnerDiver
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import json
 import math
 import random
@@ -36,6 +38,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import torch
+from omegaconf import OmegaConf
 from tensordict import TensorDictBase
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
@@ -44,20 +47,24 @@ from tqdm import tqdm
 
 from sidewalk._torchrl import collector_state, restore_collector_state
 from sidewalk.algos import ALGORITHMS
-from sidewalk.algos.base import Algorithm
+from sidewalk.algos.replicas import ReplicaSet
 from sidewalk.config import Experiment
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate, train_metrics
 from sidewalk.loggers import make_logger
 from sidewalk.opponents.base import make_opponent
 from sidewalk.opponents.policy import policy_description
-from sidewalk.progress import Best, Progress
+from sidewalk.progress import Progress
 from sidewalk.run_folder import (
     BEST_POLICY,
+    CONFIG,
+    GROUP_DIR,
     METRICS,
     SUMMARY,
+    RunFolderError,
     append_history,
     atomic_write,
+    check,
     drop_training_state,
     git_revision,
     load_checkpoint,
@@ -69,7 +76,7 @@ from sidewalk.run_folder import (
     writer_lock,
 )
 from sidewalk.snapshot import capture_env, capture_rng, restore_env, restore_rng
-from sidewalk.stops import LearnerDiverged, RunInterrupted, StopSignals, divergence
+from sidewalk.stops import LearnerDiverged, RunInterrupted, StopSignals
 from sidewalk.views import CentralizedView, EgoView, SelfPlayView
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds draw from a stream of their own, the same at every evaluation
@@ -116,56 +123,113 @@ def collector_frames_per_batch(experiment: Experiment) -> int:
 # ---- the trial --------------------------------------------------------------------------------------------------
 
 
+def replica_dir(run_dir: Path, seed: int) -> Path:
+    """Where seed ``seed`` of a run of several seeds writes its run folder."""
+    return Path(run_dir) / f"seed{seed}"
+
+
+def replica_config(config: dict[str, Any], seed: int) -> dict[str, Any]:
+    """A seed's ``config.yaml`` in a run of several: the run's, with its own seed, as a run of that seed alone."""
+    return {**config, "seed": seed, "replicas": 1}
+
+
+def check_folders(run_dir: Path, experiment: Experiment, config: dict[str, Any]) -> None:
+    """Before any compute: every folder of the trial can start (or, ``resume=true``, continue) it; raises
+    ``RunFolderError`` naming the folder and why. Several seeds: the group's folder holds the checkpoint, and each
+    seed's folder must be new, or (resuming) one of this group's."""
+    run_dir = Path(run_dir)
+    if experiment.replicas == 1:
+        check(run_dir, config, experiment.resume)
+        return
+    check(run_dir / GROUP_DIR, config, experiment.resume)
+    for replica in range(experiment.replicas):
+        seed = experiment.seed + replica
+        folder = replica_dir(run_dir, seed)
+        if experiment.resume:
+            if not (folder / CONFIG).exists():
+                raise RunFolderError(f"resume=true but {folder} is not a run folder of this group")
+            continue
+        check(folder, replica_config(config, seed), resume=False)
+
+
+@dataclass
+class SeedRun:
+    """One seed of a trial: its run folder, the config it records, its evaluation env, logger and progress."""
+
+    experiment: Experiment  # this seed's experiment alone (replicas=1)
+    run_dir: Path
+    config: dict[str, Any]
+    eval_env: EnvBase
+    logger: Any
+    state: Progress
+
+
 @dataclass
 class Parts:
     """What one trial is made of, built from its experiment in the order data flows through them."""
 
     train_env: TransformedEnv
-    eval_env: EnvBase
-    algo: Algorithm
+    learners: ReplicaSet
     collector: Collector
-    replay_buffer: TensorDictReplayBuffer | None
-    logger: Any
-    frames_per_batch: int
+    replay_buffers: list[TensorDictReplayBuffer | None]
+    runs: list[SeedRun]
+    frames_per_batch: int  # one seed's frames an iteration
     ego: int | None  # the learner's agent in an ego view; None where it plays every agent
 
 
 class Trial:
-    """Train one learner with one seed and write its run folder (see the module docstring)."""
+    """Train a learner on ``experiment.replicas`` seeds (``seed``, ``seed+1``, ...) and write a run folder per seed
+    (see the module docstring): one seed writes ``run_dir``; several write ``run_dir/seed<S>/`` each and keep their
+    one checkpoint in ``run_dir/.group/``. Their worlds live in one env and one collector gathers them; the learner
+    trains them as one (``sidewalk.algos.replicas``)."""
 
     def __init__(self, experiment: Experiment, run_dir: str | Path, config: dict | None = None) -> None:
         """``config``: the resolved config to write as ``config.yaml`` (and check a resume against); without it
-        the folder gets no ``config.yaml`` or ``history.jsonl`` (benchmarks' throwaway runs)."""
+        the folders get no ``config.yaml`` or ``history.jsonl`` (benchmarks' throwaway runs)."""
         self.experiment = experiment
         self.run_dir = Path(run_dir)
         self.config = config or {}
+        self.seeds = [experiment.seed + replica for replica in range(experiment.replicas)]
+        self.state_dir = self.run_dir if len(self.seeds) == 1 else self.run_dir / GROUP_DIR
 
     def run(
         self,
         progress: bool = True,
         on_evaluation: Callable[[dict[str, float], float, float], bool] | None = None,
-    ) -> dict[str, float]:
-        """Train, evaluate and write the run folder, holding its writer lock; return the summary.
+    ) -> dict[str, Any]:
+        """Train, evaluate and write the run folders, holding their writer locks; return the summary (a list of
+        them, one per seed, with several seeds).
 
         ``on_evaluation(metrics, started, ended)`` is called after each periodic evaluation with its metrics and
         its ``time.perf_counter()`` bounds; returning True ends training there (the run folder is completed as
         usual, with the iterations actually run).
         """
-        with writer_lock(self.run_dir):
+        with contextlib.ExitStack() as locks:
+            for folder in self._folders():
+                folder.mkdir(parents=True, exist_ok=True)
+                locks.enter_context(writer_lock(folder))
             revision = git_revision()  # the code this process loaded, not what the checkout holds when it ends
             self._seed()
             parts = self._build()
-            state = self._start(parts)
-            bar = tqdm(total=self.experiment.iterations, initial=state.iteration, disable=not progress,
-                       desc="train", unit="it")
+            self._start(parts)
+            first = parts.runs[0].state
+            desc = "train" if len(self.seeds) == 1 else f"train ×{len(self.seeds)}"
+            bar = tqdm(total=self.experiment.iterations, initial=first.iteration, disable=not progress, desc=desc,
+                       unit="it")
             with StopSignals() as signals:
                 for batch in parts.collector:
-                    row, stop = self._iteration(parts, state, batch, on_evaluation)
-                    self._progress(bar, row)
-                    if self._after_iteration(parts, state, stop, signals, bar):
+                    rows, stop = self._iteration(parts, batch, on_evaluation)
+                    self._progress(bar, rows)
+                    if self._after_iteration(parts, stop, signals, bar):
                         break
             bar.close()
-            return self._finish(parts, state, revision)
+            summaries = self._finish(parts, revision)
+            return summaries[0] if len(summaries) == 1 else summaries
+
+    def _folders(self) -> list[Path]:
+        if len(self.seeds) == 1:
+            return [self.run_dir]
+        return [self.state_dir, *(replica_dir(self.run_dir, seed) for seed in self.seeds)]
 
     def _seed(self) -> None:
         exp = self.experiment
@@ -173,73 +237,107 @@ class Trial:
         torch.manual_seed(exp.seed)
         np.random.seed(exp.seed)
         random.seed(exp.seed)
-        self.run_dir.mkdir(parents=True, exist_ok=True)
 
     def _build(self) -> Parts:
         """env → view → learner → collector → replay buffer → logger."""
-        exp = self.experiment
-        train_env = TransformedEnv(make_view(exp, exp.num_envs, exp.seed), RewardSum())
-        eval_env = make_eval_view(exp)
-        algo: Algorithm = ALGORITHMS[exp.algo.name](exp.algo, train_env, device=exp.device)
+        exp, count = self.experiment, len(self.seeds)
+        train_env = TransformedEnv(make_view(exp, count * exp.num_envs, self.seeds if count > 1 else exp.seed),
+                                   RewardSum())
+        runs = []  # evaluation envs before the learner, as a lone run has always drawn them
+        for seed in self.seeds:
+            alone = dataclasses.replace(exp, seed=seed, replicas=1)
+            run_dir = self.run_dir if count == 1 else replica_dir(self.run_dir, seed)
+            config = (self.config if count == 1 else replica_config(self.config, seed)) if self.config else {}
+            runs.append(SeedRun(alone, run_dir, config, make_eval_view(alone), None, Progress()))
+        learners = ReplicaSet(ALGORITHMS[exp.algo.name], exp.algo, train_env, exp.device, self.seeds)
         frames_per_batch = collector_frames_per_batch(exp)
         collector = Collector(
             train_env,
-            algo.collection_policy(),
-            frames_per_batch=frames_per_batch,
-            total_frames=frames_per_batch * exp.iterations,
+            learners.collection_policy(),
+            frames_per_batch=count * frames_per_batch,
+            total_frames=count * frames_per_batch * exp.iterations,
             device=exp.device,
             auto_register_policy_transforms=False,
         )
-        replay_buffer = None
-        if algo.uses_replay_buffer:
-            replay_buffer = TensorDictReplayBuffer(
-                storage=LazyTensorStorage(exp.algo.buffer_size, device=exp.device), batch_size=exp.algo.batch_size
-            )
-        return Parts(train_env, eval_env, algo, collector, replay_buffer, make_logger(exp, self.run_dir),
-                     frames_per_batch, getattr(train_env.base_env, "ego", None))
+        buffers = 1 if len(learners.algos) == 1 else count
+        replay_buffers = [
+            TensorDictReplayBuffer(storage=LazyTensorStorage(exp.algo.buffer_size, device=exp.device),
+                                   batch_size=exp.algo.batch_size) if learners.uses_replay_buffer else None
+            for _ in range(buffers)
+        ]
+        for run in runs:
+            run.logger = make_logger(run.experiment, run.run_dir)
+        return Parts(train_env, learners, collector, replay_buffers, runs, frames_per_batch,
+                     getattr(train_env.base_env, "ego", None))
 
-    def _start(self, parts: Parts) -> Progress:
+    def _start(self, parts: Parts) -> None:
         """A fresh start, or (``resume=true``) every state the checkpoint holds put back, metrics rewound to it."""
         exp = self.experiment
-        state = Progress()
         elapsed_before = 0.0
         if exp.resume:
-            saved = load_checkpoint(self.run_dir, map_location=exp.device)
-            parts.algo.load_state_dict(saved["algorithm"])
-            if parts.replay_buffer is not None:
-                parts.replay_buffer.load_state_dict(saved["replay_buffer"])
+            saved = load_checkpoint(self.state_dir, map_location=exp.device)
+            parts.learners.load_state_dict(saved["algorithm"])
+            for buffer, held in zip(parts.replay_buffers, _as_list(saved["replay_buffer"], len(parts.replay_buffers))):
+                if buffer is not None:
+                    buffer.load_state_dict(held)
             restore_env(parts.train_env.base_env, saved["env"])
             restore_collector_state(parts.collector, saved)
             restore_rng(saved["rng"])
-            state.rows, state.iteration, elapsed_before = saved["rows"], saved["iteration"], saved["elapsed_s"]
-            state.load_best_state(saved.get("best"))
-        if self.config:  # from runners/main.py: the folder records the config and this start
-            record_start(self.run_dir, self.config, exp.resume)
-        if exp.resume:
-            self._write_metrics(state.rows)
-        state.started = time.perf_counter() - elapsed_before
-        state.last_write = time.perf_counter()
-        return state
+            elapsed_before = saved["elapsed_s"]
+            for run, held in zip(parts.runs, saved.get("runs", [saved])):
+                run.state.rows, run.state.iteration = held["rows"], saved["iteration"]
+                run.state.load_best_state(held.get("best"))
+        if self.config:  # from runners/main.py: the folders record the config and this start
+            self._record_start(parts)
+        started = time.perf_counter() - elapsed_before
+        for run in parts.runs:
+            if exp.resume:
+                self._write_metrics(run)
+            run.state.started, run.state.last_write = started, time.perf_counter()
+
+    def _record_start(self, parts: Parts) -> None:
+        """Each folder's ``config.yaml`` and its start in ``history.jsonl``; with several seeds, the group's too."""
+        resume = self.experiment.resume
+        if len(parts.runs) == 1:
+            record_start(self.run_dir, self.config, resume)
+            return
+        record_start(self.state_dir, self.config, resume)
+        for run in parts.runs:
+            if resume:  # the group's own check refused any change but a longer run
+                atomic_write(run.run_dir / CONFIG, lambda tmp, run=run: OmegaConf.save(OmegaConf.create(run.config), tmp))
+                append_history(run.run_dir, "resumed", group=str(self.run_dir))
+            else:
+                record_start(run.run_dir, run.config, resume=False)
+                append_history(run.run_dir, "group", folder=str(self.run_dir), seeds=self.seeds)
 
     def _iteration(
-        self, parts: Parts, state: Progress, batch: TensorDictBase,
+        self, parts: Parts, batch: TensorDictBase,
         on_evaluation: Callable[[dict[str, float], float, float], bool] | None,
-    ) -> tuple[dict[str, float], bool]:
-        """One update on a collected batch, its metrics row (with an evaluation when one is due), logged; returns
-        the row and whether ``on_evaluation`` asked to stop."""
-        logs = parts.algo.update(batch, parts.replay_buffer)
+    ) -> tuple[list[dict[str, float]], bool]:
+        """Every seed's update on its block of the collected batch, then its metrics row (with an evaluation when
+        one is due), logged; returns the rows and whether ``on_evaluation`` asked every seed to stop."""
+        logs = parts.learners.update(batch, parts.replay_buffers)
         parts.collector.update_policy_weights_()
-        return self._record(parts, state, batch, logs, on_evaluation)
+        blocks = batch.split(len(batch) // len(parts.runs))
+        rows, stops = [], []
+        for replica, (run, block, update_logs) in enumerate(zip(parts.runs, blocks, logs)):
+            with parts.learners.use(replica):
+                row, stop = self._record(parts, replica, block, update_logs, on_evaluation)
+            rows.append(row)
+            stops.append(stop)
+        return rows, all(stops)
 
     def _record(
-        self, parts: Parts, state: Progress, batch: TensorDictBase, update_logs: dict[str, float],
+        self, parts: Parts, replica: int, batch: TensorDictBase, update_logs: dict[str, float],
         on_evaluation: Callable[[dict[str, float], float, float], bool] | None = None,
     ) -> tuple[dict[str, float], bool]:
-        """The metrics row of an iteration whose update returned ``update_logs`` (checked finite first), with an
-        evaluation when one is due, logged; returns the row and whether ``on_evaluation`` asked to stop."""
-        exp, algo = self.experiment, parts.algo
+        """Seed ``replica``'s metrics row of an iteration whose update returned ``update_logs`` (checked finite
+        first), with an evaluation when one is due, logged; returns the row and whether ``on_evaluation`` asked to
+        stop."""
+        run = parts.runs[replica]
+        exp, state = run.experiment, run.state
         logs = {f"train/{key}": value for key, value in update_logs.items()}
-        self._check_finite(algo, logs, state)
+        self._check_finite(parts, replica, logs)
         state.iteration += 1
         row: dict[str, float] = {"iteration": state.iteration, "frames": state.iteration * parts.frames_per_batch}
         row.update(train_metrics(batch, parts.ego))
@@ -250,146 +348,180 @@ class Trial:
         if exp.eval_every and (state.iteration % exp.eval_every == 0 or state.iteration == exp.iterations):
             rng = capture_rng()  # evaluation must not shift the training stream
             eval_started = time.perf_counter()
-            metrics = evaluate(parts.eval_env, algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+            learner = parts.learners.learner(replica)
+            metrics = evaluate(run.eval_env, learner.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
             eval_ended = time.perf_counter()
             restore_rng(rng)
-            state.keep_if_best(metrics, lambda: self._policy_state(algo))
+            state.keep_if_best(metrics, lambda: self._policy_state(parts, replica))
             row.update({f"eval/{key}": value for key, value in metrics.items()})
             stop = on_evaluation is not None and bool(on_evaluation(metrics, eval_started, eval_ended))
         elapsed = state.elapsed()
         row["time_s"] = elapsed
         row["frames_per_s"] = row["frames"] / max(elapsed, 1e-9)
         state.rows.append(row)
-        if parts.logger is not None:
+        if run.logger is not None:
             for key, value in row.items():
                 if key != "iteration" and isinstance(value, float) and math.isfinite(value):
-                    parts.logger.log_scalar(key, value, step=int(row["frames"]))
+                    run.logger.log_scalar(key, value, step=int(row["frames"]))
         return row, stop
 
-    def _check_finite(self, algo: Algorithm, logs: dict[str, float], state: Progress) -> None:
+    def _check_finite(self, parts: Parts, replica: int, logs: dict[str, float]) -> None:
         """Stop before anything is written from an update whose loss or parameters turned non-finite."""
-        diverged = divergence(algo, logs)
+        diverged = parts.learners.divergence(replica, logs)
         if diverged is None:
             return
-        self._write_metrics(state.rows)
-        self._history("diverged", iteration=state.iteration + 1, non_finite=diverged)
+        run = parts.runs[replica]
+        self._write_metrics(run)
+        self._history(run, "diverged", iteration=run.state.iteration + 1, non_finite=diverged)
         raise LearnerDiverged(
-            f"the learner diverged at iteration {state.iteration + 1}: non-finite {diverged}. The run stopped; "
-            f"{self.run_dir} keeps its last checkpoint and metrics up to iteration {state.iteration} "
+            f"the learner diverged at iteration {run.state.iteration + 1}: non-finite {diverged}. The run stopped; "
+            f"{run.run_dir} keeps its last checkpoint and metrics up to iteration {run.state.iteration} "
             "(try a lower algo.lr or algo.max_grad_norm, or another seed)"
         )
 
-    def _after_iteration(self, parts: Parts, state: Progress, stop: bool, signals: StopSignals, bar: tqdm) -> bool:
+    def _after_iteration(self, parts: Parts, stop: bool, signals: StopSignals, bar: tqdm) -> bool:
         """Checkpoint and write metrics when due; leave on a signal (``RunInterrupted``); True when training is done."""
+        state = parts.runs[0].state
         done, interrupted, checkpoint, metrics = state.due(self.experiment, stop, signals)
         if checkpoint:
-            self._checkpoint(parts, state, state.elapsed())
+            self._checkpoint(parts)
         if metrics:
-            self._write_metrics(state.rows)
-            state.last_write = time.perf_counter()
+            for run in parts.runs:
+                self._write_metrics(run)
+                run.state.last_write = time.perf_counter()
         if interrupted:
             bar.close()
             parts.collector.shutdown()
-            self._history("interrupted", iteration=state.iteration, signal=signal.Signals(signals.received).name)
+            stopped = {"iteration": state.iteration, "signal": signal.Signals(signals.received).name}
+            if len(parts.runs) > 1 and self.config:
+                append_history(self.state_dir, "interrupted", **stopped)
+            for run in parts.runs:
+                self._history(run, "interrupted", **stopped)
             raise RunInterrupted(signals.received, state.iteration, self.run_dir)
         return done
 
-    def _checkpoint(self, parts: Parts, state: Progress, elapsed: float) -> None:
+    def _checkpoint(self, parts: Parts) -> None:
+        """One file for every seed (they share one env and one collector), then each seed's ``policy.pt``, so a
+        partner can play the run while it trains."""
+        first = parts.runs[0].state
+        buffers = [buffer.state_dict() if buffer is not None else None for buffer in parts.replay_buffers]
         saved = {
-            "iteration": state.iteration,
-            "elapsed_s": elapsed,
-            "algorithm": parts.algo.state_dict(),
-            "replay_buffer": parts.replay_buffer.state_dict() if parts.replay_buffer is not None else None,
+            "iteration": first.iteration,
+            "elapsed_s": first.elapsed(),
+            "algorithm": parts.learners.state_dict(),
+            "replay_buffer": buffers[0] if len(buffers) == 1 else buffers,
             "env": capture_env(parts.train_env.base_env),
             **collector_state(parts.collector),
             "rng": capture_rng(),
-            "rows": state.rows,
-            "best": state.best_state(),
         }
-        save_checkpoint(self.run_dir, saved)
-        save_policy(self.run_dir, self._policy_state(parts.algo))  # a partner can play the run while it trains
+        seeds = [{"rows": run.state.rows, "best": run.state.best_state()} for run in parts.runs]
+        if len(parts.runs) == 1:
+            saved.update(seeds[0])
+        else:
+            saved.update(runs=seeds, seeds=self.seeds)
+        save_checkpoint(self.state_dir, saved)
+        for replica, run in enumerate(parts.runs):
+            save_policy(run.run_dir, self._policy_state(parts, replica))
 
-    def _finish(self, parts: Parts, state: Progress, revision: str) -> dict[str, Any]:
-        """The last checkpoint (``keep_checkpoint=all``), ``policy.pt`` and ``summary.json`` from the final evaluation."""
+    def _finish(self, parts: Parts, revision: str) -> list[dict[str, Any]]:
+        """The last checkpoint (``keep_checkpoint=all``), then each seed's ``policy.pt`` and ``summary.json`` from its
+        final evaluation."""
         exp = self.experiment
         if exp.keep_checkpoint == "all":
-            self._checkpoint(parts, state, state.elapsed())
+            self._checkpoint(parts)
         parts.collector.shutdown()
-        summary = self._conclude(parts, state, revision)
+        summaries = []
+        for replica, run in enumerate(parts.runs):
+            with parts.learners.use(replica):
+                summaries.append(self._conclude(parts, replica, revision))
+            self._history(run, "finished", iteration=run.state.iteration)
         if exp.keep_checkpoint == "final":  # the replay buffer and optimiser state are gigabytes over a sweep
-            drop_training_state(self.run_dir)
-        self._history("finished", iteration=state.iteration)
-        return summary
+            drop_training_state(self.state_dir)
+        if len(parts.runs) > 1 and self.config:
+            append_history(self.state_dir, "finished", iteration=parts.runs[0].state.iteration)
+        return summaries
 
-    def _conclude(self, parts: Parts, state: Progress, revision: str) -> dict[str, Any]:
-        """Write ``policy.pt`` and ``summary.json`` (the last evaluation's metrics, or a final one); return the summary."""
-        exp, iteration = self.experiment, state.iteration
-        save_policy(self.run_dir, self._policy_state(parts.algo))
+    def _conclude(self, parts: Parts, replica: int, revision: str) -> dict[str, Any]:
+        """Write a seed's ``policy.pt`` and ``summary.json`` (the last evaluation's metrics, or a final one); return
+        the summary."""
+        run = parts.runs[replica]
+        exp, state = run.experiment, run.state
+        save_policy(run.run_dir, self._policy_state(parts, replica))
         rows = state.rows
-        last_eval = {key[len("eval/"):]: value for key, value in rows[-1].items() if key.startswith("eval/")}
-        final = last_eval
+        final = {key[len("eval/"):]: value for key, value in rows[-1].items() if key.startswith("eval/")}
         if not final:  # no periodic evaluation (eval_every=0): the final one is also the best
-            final = evaluate(parts.eval_env, parts.algo.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
-            state.keep_if_best(final, lambda: self._policy_state(parts.algo))
+            learner = parts.learners.learner(replica)
+            final = evaluate(run.eval_env, learner.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+            state.keep_if_best(final, lambda: self._policy_state(parts, replica))
         training_cost = rows[-1].get("train/cumulative_cost", 0.0) if rows else 0.0
-        frames = iteration * parts.frames_per_batch
-        wall_clock_s = state.elapsed()
+        frames = state.iteration * parts.frames_per_batch
         summary = {
             **final,
             "seed": exp.seed,
             "eval_protocol": exp.protocol_summary(),
-            "absolute": self._absolute(parts, state.best),
-            "iterations": iteration,
+            "absolute": self._absolute(parts, replica),
+            "iterations": state.iteration,
             "frames": frames,
             # Safety Gym's third figure: the cost paid over all of training per frame (world-step) collected.
             "train_cost": training_cost,
             "cost_rate": training_cost / max(frames, 1),
-            "wall_clock_s": wall_clock_s,
+            "wall_clock_s": state.elapsed(),
             "versions": package_versions(),
             "git_revision": revision,
         }
-        atomic_write(self.run_dir / SUMMARY, lambda tmp: tmp.write_text(json.dumps(strict_json(summary), indent=2,
-                                                                                      default=str)))
+        atomic_write(run.run_dir / SUMMARY, lambda tmp: tmp.write_text(json.dumps(strict_json(summary), indent=2,
+                                                                                          default=str)))
         return summary
 
-    def _absolute(self, parts: Parts, best: Best | None) -> dict[str, Any] | None:
+    def _absolute(self, parts: Parts, replica: int) -> dict[str, Any] | None:
         """The best evaluation's policy (``policy.best.pt``) on ``ABSOLUTE_EPISODES`` times the evaluation's episodes,
         worlds of their own stream; None without an evaluation. Once training is over: it loads that policy."""
+        run = parts.runs[replica]
+        best = run.state.best
         if best is None:
             return None
-        exp = self.experiment
-        save_policy(self.run_dir, best.policy, BEST_POLICY)
-        parts.algo.load_policy_state_dict(best.policy)
+        exp = run.experiment
+        save_policy(run.run_dir, best.policy, BEST_POLICY)
+        learner = parts.learners.learner(replica)
+        learner.load_policy_state_dict(best.policy)
         seed = exp.seed + ABSOLUTE_SEED_OFFSET
         env = make_view(exp, ABSOLUTE_EPISODES * exp.eval_episodes, seed, env_params=exp.eval_env_params)
-        metrics = evaluate(env, parts.algo.evaluation_policy(), seed=seed)
+        metrics = evaluate(env, learner.evaluation_policy(), seed=seed)
         return {"iteration": best.iteration, "frames": best.iteration * parts.frames_per_batch, **metrics}
 
-    def _policy_state(self, algo: Algorithm) -> dict[str, Any]:
+    def _policy_state(self, parts: Parts, replica: int) -> dict[str, Any]:
         """``policy.pt``: the networks and the description of the world they learned in, all a partner needs."""
-        return {**algo.policy_state_dict(), "description": policy_description(self.experiment)}
-
-    def _history(self, event: str, **details: Any) -> None:
-        if self.config:
-            append_history(self.run_dir, event, **details)
-
-    def _write_metrics(self, rows: list[dict[str, float]]) -> None:
-        frame = pd.DataFrame(rows)
-        first = [c for c in ("iteration", "frames", *WALL_CLOCK_COLUMNS) if c in frame.columns]
-        frame = frame[first + sorted(c for c in frame.columns if c not in first)]
-        atomic_write(self.run_dir / METRICS, lambda tmp: frame.to_csv(tmp, index=False))
+        description = policy_description(parts.runs[replica].experiment)
+        return {**parts.learners.policy_state(replica), "description": description}
 
     @staticmethod
-    def _progress(bar: tqdm, row: dict[str, float]) -> None:
-        postfix = {"frames": int(row["frames"])}
+    def _history(run: SeedRun, event: str, **details: Any) -> None:
+        if run.config:
+            append_history(run.run_dir, event, **details)
+
+    @staticmethod
+    def _write_metrics(run: SeedRun) -> None:
+        frame = pd.DataFrame(run.state.rows)
+        first = [c for c in ("iteration", "frames", *WALL_CLOCK_COLUMNS) if c in frame.columns]
+        frame = frame[first + sorted(c for c in frame.columns if c not in first)]
+        atomic_write(run.run_dir / METRICS, lambda tmp: frame.to_csv(tmp, index=False))
+
+    @staticmethod
+    def _progress(bar: tqdm, rows: list[dict[str, float]]) -> None:
+        postfix: dict[str, Any] = {"frames": int(sum(row["frames"] for row in rows))}
         for key, label in (
             ("train/ego_success_rate", "train_success"), ("train/team_success_rate", "team_success"),
             ("train/return", "return"), ("eval/ego/success_rate", "eval_success"),
         ):
-            if key in row and not (key == "train/team_success_rate" and "train/ego_success_rate" in row):
-                postfix[label] = f"{row[key]:.2f}"
+            values = [row[key] for row in rows if key in row]
+            if values and not (key == "train/team_success_rate" and "train_success" in postfix):
+                postfix[label] = f"{sum(values) / len(values):.2f}"
         bar.set_postfix(postfix, refresh=False)
         bar.update(1)
+
+
+def _as_list(value: Any, count: int) -> list[Any]:
+    return value if count > 1 else [value]
 
 
 __all__ = [  # the stopping and state helpers live in their own modules; their names stay importable from here

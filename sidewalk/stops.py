@@ -32,14 +32,16 @@ class LearnerDiverged(RuntimeError):
     """The learner's loss or parameters became non-finite; nothing from that update was written."""
 
 
-def divergence(algo: Algorithm, logs: dict[str, float]) -> str | None:
-    """What is non-finite after an update (a loss, or some module's parameters), or None.
+def divergence(algo: Algorithm, logs: dict[str, float], replica: int | None = None) -> str | None:
+    """What is non-finite after an update (a loss, or some module's parameters), or None; ``replica``: only that
+    replica's parameters of a learner with a replica axis.
 
     One sum per module: a sum is finite exactly when every parameter is (they are far from overflowing it).
     """
     bad = [f"{key}={value}" for key, value in logs.items() if "loss" in key and not math.isfinite(value)]
     for name, module in algo.modules().items():
-        total = sum((p.detach().sum() for p in module.parameters()), torch.zeros(()))
+        params = (p.detach() if replica is None else p.detach()[replica] for p in module.parameters())
+        total = sum((p.sum() for p in params), torch.zeros(()))
         if not math.isfinite(float(total)):
             bad.append(f"parameters of {name!r}")
     return ", ".join(bad) or None

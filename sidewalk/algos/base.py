@@ -78,6 +78,7 @@ class Algorithm(abc.ABC):
     Config: ClassVar[type[AlgoConfig]] = AlgoConfig
     uses_replay_buffer: ClassVar[bool] = False
     multi_agent: ClassVar[bool] = False  # trains every agent on the self-play view (opponent=self)
+    replicable: ClassVar[bool] = False  # trains R replicas as one (``replicas=R``); else they run one after another
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -86,15 +87,30 @@ class Algorithm(abc.ABC):
                 raise TypeError(f"{cls.__qualname__}.name={cls.name!r} but its Config's name is {cls.Config().name!r}")
             LEARNERS.register(cls.name, cls)
 
-    def __init__(self, config: AlgoConfig, env: EnvBase, device: torch.device | str = "cpu") -> None:
+    def __init__(
+        self, config: AlgoConfig, env: EnvBase, device: torch.device | str = "cpu", replicas: int | None = None
+    ) -> None:
+        """``replicas=R``: R independent copies of the learner in one (``sidewalk.algos.replicas``), its networks and
+        batches with a leading replica axis; None: one learner, no such axis."""
         self.config = config
         self.device = torch.device(device)
+        self.replicas = self._check_replicas(replicas)
         # Unbatched specs: per-sample shapes, as TorchRL's actors and losses expect them.
         self.observation_spec = env.full_observation_spec_unbatched["observation"]
         self.action_spec = env.full_action_spec_unbatched["action"]
         self.discrete_actions = not torch.is_floating_point(self.action_spec.zero())
         self.frames_seen = 0
         self._build(env)
+
+    @property
+    def lead(self) -> tuple[int, ...]:
+        """The leading replica axis of its batches and parameters: ``()`` alone, ``(R,)`` with R replicas."""
+        return (self.replicas,) if self.replicas else ()
+
+    def _check_replicas(self, replicas: int | None) -> int | None:
+        if replicas is not None and not self.replicable:
+            raise ValueError(f"algo={self.name} has no replica axis; its replicas train one after another")
+        return replicas
 
     @abc.abstractmethod
     def _build(self, env: EnvBase) -> None:
@@ -173,7 +189,9 @@ class MultiAgentAlgorithm(Algorithm):
     TERMINATED_KEY: ClassVar[tuple[str, str]] = (AGENT_GROUP, "terminated")
     MASK_KEY: ClassVar[tuple[str, str, str]] = (AGENT_GROUP, "info", "mask")
 
-    def __init__(self, config: AlgoConfig, env: EnvBase, device: torch.device | str = "cpu") -> None:
+    def __init__(
+        self, config: AlgoConfig, env: EnvBase, device: torch.device | str = "cpu", replicas: int | None = None
+    ) -> None:
         if self.ACTION_KEY not in env.full_action_spec.keys(True, True):
             raise ValueError(
                 f"{type(self).__name__} trains every agent: it needs the self-play view (opponent=self), whose "
@@ -181,6 +199,7 @@ class MultiAgentAlgorithm(Algorithm):
             )
         self.config = config
         self.device = torch.device(device)
+        self.replicas = self._check_replicas(replicas)
         self.observation_spec = env.full_observation_spec_unbatched[self.OBSERVATION_KEY]
         self.action_spec = env.full_action_spec_unbatched[self.ACTION_KEY]
         self.n_agents = int(self.observation_spec.shape[0])

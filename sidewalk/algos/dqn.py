@@ -24,6 +24,7 @@ from sidewalk._checks import check_choice, check_int, check_range
 from sidewalk._torchrl import foreach_lerp_
 from sidewalk.algos.base import AlgoConfig, Algorithm
 from sidewalk.algos.networks import DuelingHead, is_image_spec, make_encoder
+from sidewalk.algos.replicas import clip_grad_norm_, logged, replicate_, sample_mean
 
 # What the replay buffer keeps of a transition (the "world" group and info are for metrics, not learning).
 TRANSITION_KEYS = (
@@ -110,9 +111,20 @@ def replay_updates(algo: Algorithm, replay_buffer: Any, gradient_step=None) -> d
     step = gradient_step or partial(loss_module_step, algo)
     losses = []
     for _ in range(cfg.updates_per_batch):
-        losses.append(step(replay_buffer.sample(cfg.batch_size).to(algo.device)))
+        sample = replay_buffer.sample(cfg.batch_size).to(algo.device)
+        losses.append(step(sample.transpose(0, 1) if algo.lead else sample))  # replicas: (batch, R) → (R, batch)
         algo.updates += 1
-    return {"loss": float(torch.stack(losses).mean()) if losses else float("nan")}
+    if not losses:
+        return {"loss": float("nan")}
+    return {"loss": logged(torch.stack(losses).mean(0), algo.lead)}
+
+
+def replay_rows(transitions: TensorDictBase, lead: tuple[int, ...]) -> TensorDictBase:
+    """A collected (worlds, time) batch as replay-buffer rows: one transition a row, or with R replicas one row of R
+    transitions (the replicas' batches (R, worlds, time) laid out (worlds·time, R)), so a sampled row is every
+    replica's transition at one place of its own stream."""
+    rows = transitions.reshape(*lead, -1)
+    return rows.transpose(0, 1).contiguous() if lead else rows
 
 
 def action_gap(q_values: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
@@ -163,6 +175,7 @@ class DQN(Algorithm):
     domains = ("discrete",)
     Config = DQNConfig
     uses_replay_buffer = True
+    replicable = True
 
     def _build(self, env: EnvBase) -> None:
         cfg: DQNConfig = self.config
@@ -176,6 +189,8 @@ class DQN(Algorithm):
             head = MLP(in_features=encoder.out_features, out_features=n_actions, num_cells=[cfg.hidden],
                        activation_class=nn.ReLU)
         self.q_network = nn.Sequential(encoder, head).to(self.device)
+        if self.replicas:
+            replicate_(self.q_network, self.replicas)
         spec = self.action_spec.clone().to(self.device)
         self.actor = QValueActor(self.q_network, in_keys=["observation"], spec=spec)
         self.greedy = EGreedyModule(
@@ -217,8 +232,8 @@ class DQN(Algorithm):
 
     def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
         cfg: DQNConfig = self.config
-        self.frames_seen += batch.numel()
-        replay_buffer.extend(batch.select(*TRANSITION_KEYS).reshape(-1))
+        self.frames_seen += batch[(0,) * len(self.lead)].numel()
+        replay_buffer.extend(replay_rows(batch.select(*TRANSITION_KEYS), self.lead))
         decay_epsilon(self.greedy, self.frames_seen, cfg.eps_decay_frames)
         logs: dict[str, float] = {"epsilon": float(self.greedy.eps)}
         return {**logs, **replay_updates(self, replay_buffer, self._gradient_step)}
@@ -242,10 +257,10 @@ class DQN(Algorithm):
             ).squeeze(-1)
             if cfg.advantage_learning:
                 target = target - cfg.advantage_learning * action_gap(self.target_q_network(sample["observation"]), action)
-        loss = distance_loss(q_taken, target, cfg.loss_function).mean()
+        loss = sample_mean(distance_loss(q_taken, target, cfg.loss_function), self.lead)
         self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(self._online, cfg.max_grad_norm)
+        loss.sum().backward()  # replicas: each replica's gradient is its own loss's
+        clip_grad_norm_(self._online, cfg.max_grad_norm, self.lead)
         self.optimizer.step()
         if isinstance(self.target_updater, SoftUpdate):
             # SoftUpdate's arithmetic (its weight, 1 - eps) in one foreach call instead of a lerp_ per tensor through

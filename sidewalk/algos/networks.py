@@ -42,9 +42,15 @@ class ImageEncoder(nn.Module):
         with torch.no_grad():
             self.out_features = self.forward(torch.zeros(1, *in_shape[-3:], dtype=torch.uint8)).shape[-1]
 
+    replicas: int | None = None  # set by ``replicate_``: the leading axis is the replica axis, kept apart
+
+    def replicate_(self, replicas: int) -> None:
+        self.replicas = replicas
+
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         batch = image.shape[:-3]
-        pixels = image.reshape(-1, *image.shape[-3:]).to(torch.float32) / 255.0
+        lead = batch[:1] if self.replicas else ()
+        pixels = image.reshape(*lead, -1, *image.shape[-3:]).to(torch.float32) / 255.0
         # The weights' layout picks the kernels (PyTorch runs a conv channels-last when its input or weight is), so
         # the input needs no conversion, which also keeps the encoder usable under torch.func.vmap (TRPO's
         # per-sample Fisher products), where querying a memory format is not implemented.
@@ -95,7 +101,10 @@ class DuelingHead(nn.Module):
 
 class RunningNorm(nn.Module):
     """Standardises vectors by running mean and std, clipped to ±``clip`` (baselines' ``RunningMeanStd`` as its
-    policies use it: std floored at ``min_std``, output clipped to ±5). The identity until the first ``update``."""
+    policies use it: std floored at ``min_std``, output clipped to ±5). The identity until the first ``update``.
+    Replicated (``replicate_``), it keeps one set of statistics per replica on a leading axis."""
+
+    replicas: int | None = None
 
     def __init__(self, size: int, clip: float = 5.0, min_std: float = 0.1) -> None:
         super().__init__()
@@ -106,22 +115,36 @@ class RunningNorm(nn.Module):
         self.register_buffer("mean", torch.zeros(size, dtype=torch.float64))
         self.register_buffer("var", torch.ones(size, dtype=torch.float64))
 
+    def replicate_(self, replicas: int) -> None:
+        """One set of statistics per replica, on a leading axis: ``update`` and ``forward`` then take (R, ..., size)."""
+        for name in ("count", "mean", "var"):
+            setattr(self, name, getattr(self, name).expand(replicas, *getattr(self, name).shape).clone())
+        self.replicas = replicas
+
     @torch.no_grad()
     def update(self, x: torch.Tensor) -> None:
-        """Merge the samples ``x`` (..., size) into the statistics (Chan et al.'s parallel mean/variance)."""
-        x = x.reshape(-1, self.mean.shape[0]).to(torch.float64)
-        n = x.shape[0]
-        batch_mean, batch_var = x.mean(0), x.var(0, unbiased=False)
-        total = self.count + n
+        """Merge the samples ``x`` (..., size) into the statistics (Chan et al.'s parallel mean/variance); replicated,
+        replica r's statistics take ``x[r]``."""
+        size = self.mean.shape[-1]
+        lead = (self.replicas,) if self.replicas else ()
+        x = x.reshape(*lead, -1, size).to(torch.float64)
+        n = x.shape[-2]
+        batch_mean, batch_var = x.mean(-2), x.var(-2, unbiased=False)
+        count = self.count.unsqueeze(-1)
+        total = count + n
         delta = batch_mean - self.mean
-        self.var.copy_((self.var * self.count + batch_var * n + delta**2 * self.count * n / total) / total)
+        self.var.copy_((self.var * count + batch_var * n + delta**2 * count * n / total) / total)
         self.mean.add_(delta * n / total)
-        self.count.copy_(total)
+        self.count.add_(n)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         x = x.to(torch.float32)
-        std = self.var.clamp_min(self.min_std**2).sqrt().to(x.dtype)
-        return ((x - self.mean.to(x.dtype)) / std).clamp(-self.clip, self.clip)
+        mean, var = self.mean, self.var
+        if self.replicas:  # (R, size) against (R, ..., size)
+            mean = mean.reshape(self.replicas, *([1] * (x.dim() - 2)), -1)
+            var = var.reshape(mean.shape)
+        std = var.clamp_min(self.min_std**2).sqrt().to(x.dtype)
+        return ((x - mean.to(x.dtype)) / std).clamp(-self.clip, self.clip)
 
 
 def _trunk(encoder: nn.Module, norm: RunningNorm | None, out_features: int, hidden: list[int]) -> nn.Sequential:

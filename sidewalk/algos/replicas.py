@@ -1,0 +1,286 @@
+"""R copies of a learner's networks trained as one: the replica axis, for ``replicas=R`` (several seeds in one run).
+
+A replicated network is the lone network with every parameter and buffer stacked on a leading replica axis, under
+the lone network's own names: ``replicate_(network, R)`` swaps each parameter-holding leaf (a linear or conv layer,
+a state-independent scale) for a ``ReplicatedLeaf``, whose forward maps the leaf over the replica axis
+(``torch.func.functional_call`` under ``torch.vmap``, TorchRL's ensemble pattern at the layer). Everything between the
+leaves (activations, flattening, TorchRL's actors, distributions and value estimators) is shape-agnostic, so a
+learner's update is written once for data with an optional leading replica axis: ``lead`` is ``()`` for a lone
+learner and ``(R,)`` for R replicas, and its reductions run over the sample axes only (``sample_mean``). Replicas
+draw from one global stream: a replica is statistically its lone run, not bit for bit.
+
+A lone learner is the network as it always was (no replica axis), so its arithmetic is the one a run of one seed has
+always had. ``replica_state`` takes one replica out of a replicated learner's state in the lone learner's format,
+which is what ``policy.pt`` holds.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import math
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import AddStateIndependentNormalScale, TensorDictModuleBase
+from torch import nn
+from torch.func import functional_call
+from torchrl.envs import EnvBase
+from torchrl.modules import MLP, ConvNet
+
+from sidewalk.algos.base import Algorithm
+from sidewalk.stops import divergence
+from sidewalk.streams import ReplicaStreams
+
+# The units a replicated network maps over the replica axis: TorchRL's MLP and conv stack (whose forward folds every
+# leading axis into one) and the parameter-holding leaves outside them. RunningNorm and ImageEncoder keep a replica
+# axis of their own (their ``replicate_``).
+REPLICATED_UNITS: tuple[type[nn.Module], ...] = (MLP, ConvNet, nn.Linear, nn.Conv2d, AddStateIndependentNormalScale)
+
+
+class _Replicated:
+    """What a replicated unit's class adds to the unit's own: a forward mapped over the replica axis."""
+
+    def forward(self, *inputs: torch.Tensor) -> Any:
+        state = dict(self.named_parameters())
+        state.update(self.named_buffers())
+        if next(iter(state.values())).device.type != "cpu":
+            return torch.vmap(self._one_replica, randomness="different")(state, inputs)
+        # On a CPU each replica's slice runs as a lone layer does: vmap's batched kernels were 1.5-2x slower than R
+        # lone calls here for our convolutions and for MLPs on 2048 samples (python -m sidewalk.bench.replicas).
+        outputs = [
+            self._one_replica({name: tensor[r] for name, tensor in state.items()}, tuple(x[r] for x in inputs))
+            for r in range(self.replicas)
+        ]
+        return torch.stack(outputs) if isinstance(outputs[0], torch.Tensor) else tuple(map(torch.stack, zip(*outputs)))
+
+    def _one_replica(self, state: dict[str, torch.Tensor], inputs: tuple[torch.Tensor, ...]) -> Any:
+        return functional_call(self.__dict__["replica_template"], state, inputs)
+
+
+_REPLICATED_CLASSES: dict[type, type] = {}
+
+
+def _replicated_class(cls: type) -> type:
+    if cls not in _REPLICATED_CLASSES:
+        _REPLICATED_CLASSES[cls] = type(f"Replicated{cls.__name__}", (_Replicated, cls), {})
+    return _REPLICATED_CLASSES[cls]
+
+
+def _replicate_unit_(unit: nn.Module, replicas: int) -> None:
+    """Stack ``replicas`` copies of ``unit``'s state in place, under its own names (the first copy is ``unit`` as it
+    is, the others re-drawn by each layer's ``reset_parameters``), and map its forward over the leading axis."""
+    copies = [unit]
+    for _ in range(replicas - 1):
+        fresh = copy.deepcopy(unit)
+        for layer in fresh.modules():
+            if hasattr(layer, "reset_parameters"):
+                layer.reset_parameters()
+        copies.append(fresh)
+    params, buffers = torch.func.stack_module_state(copies)
+    template = copy.deepcopy(unit).to("meta")
+    for name, tensor in {**params, **buffers}.items():
+        owner_name, _, leaf = name.rpartition(".")
+        owner = unit.get_submodule(owner_name)
+        if name in params:
+            setattr(owner, leaf, nn.Parameter(tensor.detach().clone()))
+        else:
+            owner.register_buffer(leaf, tensor.clone())
+    unit.__class__ = _replicated_class(type(unit))
+    unit.__dict__["replica_template"] = template  # not a submodule: it holds no state
+    unit.replicas = replicas
+
+
+def replicate_(network: nn.Module, replicas: int) -> nn.Module:
+    """Give every unit of ``network`` (``REPLICATED_UNITS``, and modules with a ``replicate_`` of their own) a
+    leading replica axis of ``replicas`` independently initialised copies, in place, keeping every state name; a
+    module reached twice is replicated once. Returns ``network``."""
+    seen: set[int] = set()
+
+    def visit(module: nn.Module) -> None:
+        if id(module) in seen:
+            return
+        seen.add(id(module))
+        if isinstance(module, REPLICATED_UNITS):
+            _replicate_unit_(module, replicas)
+            return
+        if hasattr(module, "replicate_") and module.replicas is None:
+            module.replicate_(replicas)
+        for child in module.children():
+            visit(child)
+
+    visit(network)
+    return network
+
+
+def logged(value: torch.Tensor, lead: Sequence[int]) -> float | torch.Tensor:
+    """A value to log: a float for a lone learner, a detached (R,) tensor for R replicas (one float each)."""
+    return value.detach() if lead else float(value)
+
+
+def sample_mean(value: torch.Tensor, lead: Sequence[int]) -> torch.Tensor:
+    """The mean over every axis but the replica axis: a scalar for a lone learner (``lead == ()``), (R,) for R."""
+    if not lead:
+        return value.mean()
+    return value.reshape(*lead, -1).mean(-1)
+
+
+def sample_std(value: torch.Tensor, lead: Sequence[int]) -> torch.Tensor:
+    """The (unbiased) standard deviation over every axis but the replica axis, shaped to broadcast against ``value``."""
+    if not lead:
+        return value.std()
+    return value.reshape(*lead, -1).std(-1).reshape(*lead, *([1] * (value.dim() - len(lead))))
+
+
+def broadcast_lead(value: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """A per-replica value (``lead``-shaped) shaped to broadcast against ``like`` (``lead`` followed by sample axes)."""
+    return value.reshape(*value.shape, *([1] * (like.dim() - value.dim())))
+
+
+def clip_grad_norm_(parameters: Iterable[torch.Tensor], max_norm: float, lead: Sequence[int]) -> None:
+    """``torch.nn.utils.clip_grad_norm_`` for each replica on its own: each replica's gradient scaled to a norm of
+    at most ``max_norm``, over its slice of every parameter."""
+    parameters = [p for p in parameters if p.grad is not None]
+    if not lead:
+        torch.nn.utils.clip_grad_norm_(parameters, max_norm)
+        return
+    if not parameters or not math.isfinite(max_norm):
+        return
+    squares = torch.stack([p.grad.reshape(*lead, -1).pow(2).sum(-1) for p in parameters]).sum(0)
+    scale = (max_norm / (squares.sqrt() + 1e-6)).clamp(max=1.0)
+    for p in parameters:
+        p.grad.mul_(broadcast_lead(scale, p.grad))
+
+
+def flat_vector(tensors: Iterable[torch.Tensor], lead: Sequence[int]) -> torch.Tensor:
+    """Each replica's tensors as one vector: (P,) for a lone learner, (R, P) for R (``parameters_to_vector``)."""
+    return torch.cat([tensor.reshape(*lead, -1) for tensor in tensors], -1)
+
+
+def assign_flat_(parameters: Sequence[torch.Tensor], vector: torch.Tensor, lead: Sequence[int]) -> None:
+    """Write ``vector`` ((P,) or (R, P), as ``flat_vector`` lays it out) into ``parameters``, in place."""
+    offset = 0
+    for param in parameters:
+        size = param[(0,) * len(lead)].numel() if lead else param.numel()
+        param.data.copy_(vector[..., offset : offset + size].reshape(param.shape))
+        offset += size
+
+
+def replica_state(state: Any, lone: Any, replica: int) -> Any:
+    """Replica ``replica``'s part of a replicated learner's ``state`` (nested dicts and lists of tensors), in the
+    layout of ``lone``, the same state of a lone learner: a tensor shaped ``(R, *s)`` where the lone one is ``s``
+    is the replica's slice (a copy), one shaped alike is shared by every replica."""
+    if isinstance(state, dict):
+        return {key: replica_state(value, lone[key], replica) for key, value in state.items() if key in lone}
+    if isinstance(state, (list, tuple)):
+        return type(state)(replica_state(value, other, replica) for value, other in zip(state, lone))
+    if isinstance(state, torch.Tensor) and isinstance(lone, torch.Tensor) and state.dim() == lone.dim() + 1:
+        return state[replica].clone()
+    return state
+
+
+class ReplicaPolicy(TensorDictModuleBase):
+    """A collection policy over every replica's worlds (replica-major blocks of one env's batch): a replicated
+    learner's policy on the batch laid out (R, worlds), or each lone learner's on its block, on its own stream."""
+
+    def __init__(self, policies: list[TensorDictModuleBase], replicas: int, streams: ReplicaStreams | None) -> None:
+        super().__init__()
+        self.policies = nn.ModuleList(policies)
+        self.replicas, self.streams = replicas, streams
+        self.in_keys, self.out_keys = list(policies[0].in_keys), list(policies[0].out_keys)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        if self.streams is None:
+            return self.policies[0](tensordict.reshape(self.replicas, -1)).reshape(-1)
+        outputs = []
+        for replica, (policy, block) in enumerate(zip(self.policies, tensordict.split(len(tensordict) // self.replicas))):
+            with self.streams.use(replica):
+                outputs.append(policy(block.clone()))
+        return torch.cat(outputs, 0)
+
+
+class ReplicaSet:
+    """The learners of a run's seeds, behind one face for the trial (``sidewalk.experiment``): one learner for one
+    seed; for R seeds one learner with a replica axis where its class has one (``Algorithm.replicable``), else R
+    lone learners updated one after another, each drawing from its own stream (``sidewalk.streams``)."""
+
+    def __init__(
+        self, cls: type[Algorithm], config: Any, env: EnvBase, device: Any, seeds: Sequence[int]
+    ) -> None:
+        self.count = len(seeds)
+        self.streams: ReplicaStreams | None = None
+        if self.count == 1:
+            self.algos = [cls(config, env, device=device)]
+        elif cls.replicable:
+            self.algos = [cls(config, env, device=device, replicas=self.count)]
+            with torch.random.fork_rng(devices=[]):  # plays one replica at a time: evaluation, policy.pt
+                self.lone = cls(config, env, device=device)
+        else:
+            self.streams = ReplicaStreams(seeds)
+            self.algos = []
+            for replica in range(self.count):
+                with self.streams.use(replica):
+                    self.algos.append(cls(config, env, device=device))
+        self.uses_replay_buffer = cls.uses_replay_buffer
+
+    @property
+    def replicated(self) -> bool:
+        """One learner with a replica axis for several seeds."""
+        return self.count > 1 and self.streams is None
+
+    def collection_policy(self) -> TensorDictModuleBase:
+        if self.count == 1:
+            return self.algos[0].collection_policy()
+        return ReplicaPolicy([algo.collection_policy() for algo in self.algos], self.count, self.streams)
+
+    def use(self, replica: int) -> contextlib.AbstractContextManager:
+        """Replica ``replica``'s random stream where the replicas keep their own; else nothing to switch."""
+        return self.streams.use(replica) if self.streams is not None else contextlib.nullcontext()
+
+    def update(self, batch: TensorDictBase, replay_buffers: list[Any]) -> list[dict[str, float]]:
+        """Every replica's update on its block of the collected batch (replica-major worlds); each one's logs."""
+        if self.count == 1:
+            return [self.algos[0].update(batch, replay_buffers[0])]
+        if self.replicated:
+            logs = self.algos[0].update(batch.reshape(self.count, -1, *batch.shape[1:]), replay_buffers[0])
+            return [{key: float(value[r]) if isinstance(value, torch.Tensor) else value for key, value in logs.items()}
+                    for r in range(self.count)]
+        blocks = batch.split(len(batch) // self.count)
+        out = []
+        for replica, (algo, block, buffer) in enumerate(zip(self.algos, blocks, replay_buffers)):
+            with self.use(replica):
+                out.append(algo.update(block, buffer))
+        return out
+
+    def learner(self, replica: int) -> Algorithm:
+        """A lone learner holding replica ``replica``'s networks now: to evaluate it or write its ``policy.pt``."""
+        if not self.replicated:
+            return self.algos[replica]
+        self.lone.load_policy_state_dict(self.policy_state(replica))
+        return self.lone
+
+    def policy_state(self, replica: int) -> dict[str, Any]:
+        """Replica ``replica``'s ``Algorithm.policy_state_dict``, in a lone learner's layout."""
+        if not self.replicated:
+            return self.algos[replica].policy_state_dict()
+        return replica_state(self.algos[0].policy_state_dict(), self.lone.policy_state_dict(), replica)
+
+    def divergence(self, replica: int, logs: dict[str, float]) -> str | None:
+        """What turned non-finite in replica ``replica``'s update (``sidewalk.stops.divergence``), or None."""
+        if self.replicated:
+            return divergence(self.algos[0], logs, replica)
+        return divergence(self.algos[replica], logs)
+
+    def state_dict(self) -> Any:
+        state = [algo.state_dict() for algo in self.algos]
+        return state[0] if len(state) == 1 else {"learners": state, "streams": self.streams.state_dict()}
+
+    def load_state_dict(self, state: Any) -> None:
+        if len(self.algos) == 1:
+            self.algos[0].load_state_dict(state)
+            return
+        for algo, held in zip(self.algos, state["learners"]):
+            algo.load_state_dict(held)
+        self.streams.load_state_dict(state["streams"])
