@@ -107,6 +107,10 @@ class Algorithm(abc.ABC):
         """The leading replica axis of its batches and parameters: ``()`` alone, ``(R,)`` with R replicas."""
         return (self.replicas,) if self.replicas else ()
 
+    def frames_in(self, batch: TensorDictBase) -> int:
+        """The frames of one replica's share of ``batch`` (all of it for a lone learner)."""
+        return batch[(0,) * len(self.lead)].numel() if self.lead else batch.numel()
+
     def _check_replicas(self, replicas: int | None) -> int | None:
         if replicas is not None and not self.replicable:
             raise ValueError(f"algo={self.name} has no replica axis; its replicas train one after another")

@@ -232,7 +232,7 @@ class DQN(Algorithm):
 
     def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
         cfg: DQNConfig = self.config
-        self.frames_seen += batch[(0,) * len(self.lead)].numel()
+        self.frames_seen += self.frames_in(batch)
         replay_buffer.extend(replay_rows(batch.select(*TRANSITION_KEYS), self.lead))
         decay_epsilon(self.greedy, self.frames_seen, cfg.eps_decay_frames)
         logs: dict[str, float] = {"epsilon": float(self.greedy.eps)}

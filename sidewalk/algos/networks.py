@@ -11,6 +11,8 @@ from torch import nn
 from torchrl.data import Bounded, Categorical, OneHot
 from torchrl.modules import MLP, ConvNet, OneHotCategorical, ProbabilisticActor, TanhNormal, ValueOperator
 
+from sidewalk.algos.replicas import replicate_
+
 # The paper's DQN feature stack (§6.1): 32 filters 4×4 stride 2, 64 filters 4×4 stride 2, 64 filters 2×2 stride 1.
 PAPER_CONV = {"num_cells": [32, 64, 64], "kernel_sizes": [4, 4, 2], "strides": [2, 2, 1]}
 
@@ -165,7 +167,7 @@ def tanh_normal(action_spec: Bounded, mean_bound: float = 0.0) -> dict[str, Any]
 
 def on_policy_networks(
     observation_spec, action_spec, policy_hidden: list[int], value_hidden: list[int], normalize_observations: bool,
-    mean_bound: float = 0.0,
+    mean_bound: float = 0.0, replicas: int | None = None,
 ) -> tuple[ProbabilisticActor, ValueOperator, RunningNorm | None]:
     """The policy and value networks of OpenAI baselines' TRPO/PPO (and CleanRL's continuous PPO), from unbatched
     specs: ``observation`` (a vector, standardised by one ``RunningNorm`` both networks share, or a uint8 image
@@ -184,13 +186,17 @@ def on_policy_networks(
     else:
         raise TypeError(f"needs a Categorical, OneHot or Bounded action spec; got {type(action_spec).__name__}")
     policy_net = _trunk(make_encoder(observation_spec.shape, image), norm, n_out, policy_hidden)
+    value_net = _trunk(make_encoder(observation_spec.shape, image), norm, 1, value_hidden)
+    if replicas:  # ``replicas`` independent copies on a leading axis (sidewalk.algos.replicas)
+        replicate_(policy_net, replicas)
+        replicate_(value_net, replicas)
     out_layer = policy_net[-1][-1]
     with torch.no_grad():
         out_layer.weight.mul_(0.01)
         out_layer.bias.zero_()
     if isinstance(action_spec, Bounded):
-        policy_net.append(AddStateIndependentNormalScale(n_out, scale_mapping="exp"))
+        scale = AddStateIndependentNormalScale(n_out, scale_mapping="exp")
+        policy_net.append(replicate_(nn.Sequential(scale), replicas)[0] if replicas else scale)
     module = TensorDictModule(policy_net, in_keys=["observation"], out_keys=dist_keys)
     actor = ProbabilisticActor(module, in_keys=dist_keys, out_keys=["action"], spec=action_spec, **dist)
-    value_net = _trunk(make_encoder(observation_spec.shape, image), norm, 1, value_hidden)
     return actor, ValueOperator(value_net, in_keys=["observation"]), norm

@@ -134,6 +134,23 @@ def sample_std(value: torch.Tensor, lead: Sequence[int]) -> torch.Tensor:
     return value.reshape(*lead, -1).std(-1).reshape(*lead, *([1] * (value.dim() - len(lead))))
 
 
+def sample_var(value: torch.Tensor, lead: Sequence[int]) -> torch.Tensor:
+    """The (unbiased) variance over every axis but the replica axis: a scalar alone, (R,) for R replicas."""
+    return value.var() if not lead else value.reshape(*lead, -1).var(-1)
+
+
+def mse_per_replica(value: torch.Tensor, target: torch.Tensor, lead: Sequence[int]) -> torch.Tensor:
+    """Each replica's mean squared error (``F.mse_loss``): a scalar alone, (R,) for R replicas."""
+    if not lead:
+        return torch.nn.functional.mse_loss(value, target)
+    return sample_mean(torch.nn.functional.mse_loss(value, target, reduction="none"), lead)
+
+
+def rowwise_dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """The dot product of vectors (P,), or of each row of (R, P) with its row of ``b``."""
+    return a @ b if a.dim() == 1 else torch.linalg.vecdot(a, b)
+
+
 def broadcast_lead(value: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
     """A per-replica value (``lead``-shaped) shaped to broadcast against ``like`` (``lead`` followed by sample axes)."""
     return value.reshape(*value.shape, *([1] * (like.dim() - value.dim())))

@@ -27,7 +27,6 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import nn
 from torch.distributions import kl_divergence
-from torch.nn.utils import parameters_to_vector, vector_to_parameters
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType
 from torchrl.modules import ProbabilisticActor
@@ -37,6 +36,17 @@ from torchrl.objectives.value import GAE
 from sidewalk._checks import check_int, check_range
 from sidewalk.algos.base import AlgoConfig, Algorithm, FixedExplorationPolicy
 from sidewalk.algos.networks import on_policy_networks
+from sidewalk.algos.replicas import (
+    assign_flat_,
+    clip_grad_norm_,
+    flat_vector,
+    logged,
+    mse_per_replica,
+    rowwise_dot,
+    sample_mean,
+    sample_std,
+    sample_var,
+)
 
 OLD_POLICY = "old_policy"  # where ``TRPOLoss.snapshot`` keeps the frozen distribution's parameters
 
@@ -102,22 +112,26 @@ def conjugate_gradient(
     """Approximately solve ``A x = b`` for a symmetric positive-definite ``A`` known only through ``x ↦ A x``.
 
     Plain conjugate gradient from ``x = 0``: exact after ``len(b)`` iterations in exact arithmetic; stops early
-    once the squared residual falls below ``residual_tol``.
+    once the squared residual falls below ``residual_tol``. ``b`` (P,), or (R, P) for R systems at once (a replicated
+    learner's), each row stopping where it alone would.
     """
     x = torch.zeros_like(b)
     residual = b.clone()
     direction = b.clone()
-    residual_sq = residual @ residual
+    residual_sq = rowwise_dot(residual, residual)
     for _ in range(iters):
-        if residual_sq < residual_tol:
+        running = residual_sq >= residual_tol
+        if not running.any():
             break
         a_direction = matvec(direction)
-        alpha = residual_sq / (direction @ a_direction)
-        x += alpha * direction
-        residual -= alpha * a_direction
-        new_residual_sq = residual @ residual
-        direction = residual + (new_residual_sq / residual_sq) * direction
-        residual_sq = new_residual_sq
+        alpha = (residual_sq / rowwise_dot(direction, a_direction)).unsqueeze(-1)
+        new_x, new_residual = x + alpha * direction, residual - alpha * a_direction
+        new_residual_sq = rowwise_dot(new_residual, new_residual)
+        new_direction = new_residual + (new_residual_sq / residual_sq).unsqueeze(-1) * direction
+        keep = running.unsqueeze(-1)
+        x, residual = torch.where(keep, new_x, x), torch.where(keep, new_residual, residual)
+        direction = torch.where(keep, new_direction, direction)
+        residual_sq = torch.where(running, new_residual_sq, residual_sq)
     return x
 
 
@@ -216,14 +230,16 @@ class TRPOLoss(LossModule):
         so each product costs one backward pass.
         """
         params, damping = self.policy_parameters, self.cg_damping
-        kl_grad = torch.autograd.grad(self.kl(tensordict), params, create_graph=True, materialize_grads=True)
-        kl_grad = torch.cat([grad.reshape(-1) for grad in kl_grad])
+        kl = self.kl(tensordict)
+        lead = tuple(kl.shape)  # () for one learner, (R,) for R replicas: each replica's KL is its own
+        kl_grad = torch.autograd.grad(kl.sum(), params, create_graph=True, materialize_grads=True)
+        kl_grad = flat_vector(kl_grad, lead)
 
         def product(vector: torch.Tensor) -> torch.Tensor:
             hessian_vector = torch.autograd.grad(
-                kl_grad @ vector, params, retain_graph=True, materialize_grads=True
+                rowwise_dot(kl_grad, vector).sum(), params, retain_graph=True, materialize_grads=True
             )
-            return torch.cat([hv.reshape(-1) for hv in hessian_vector]) + damping * vector
+            return flat_vector(hessian_vector, lead) + damping * vector
 
         return product
 
@@ -237,50 +253,75 @@ def trpo_step(
     line_search_steps: int,
     line_search_shrink: float,
     fvp_subsample: int = 1,
-) -> dict[str, float]:
-    """One trust-region update of ``loss.actor_network`` on a flat batch prepared by ``TRPOLoss.snapshot``.
+) -> dict[str, float | torch.Tensor]:
+    """One trust-region update of ``loss.actor_network`` on a flat batch prepared by ``TRPOLoss.snapshot``: (N,)
+    samples, or (R, N) for a replicated actor, whose replicas each take their own step.
 
     The parameters move by the largest step along the natural gradient, shrunk by ``line_search_shrink`` until the
     measured mean KL(old ‖ new) is at most ``max_kl`` and the surrogate improves; if none of ``line_search_steps``
     tries qualifies, they are left exactly as they were. Returns ``kl``, ``surrogate_improvement`` and
     ``expected_improvement`` (of the step taken; 0 when none), ``step_accepted`` (1.0 or 0.0), ``step_fraction``
-    (of the full step) and ``entropy`` (of the old policy).
+    (of the full step) and ``entropy`` (of the old policy): floats, or (R,) tensors for R replicas.
     """
     params = loss.policy_parameters
-    old_params = parameters_to_vector(params).detach()
     before = loss(tensordict)
-    logs = dict.fromkeys(
-        ("kl", "surrogate_improvement", "expected_improvement", "step_accepted", "step_fraction"), 0.0
-    )
-    logs["entropy"] = before["entropy"].item()
-    gradient = torch.autograd.grad(-before["loss_objective"], params, materialize_grads=True)
-    gradient = torch.cat([grad.reshape(-1) for grad in gradient])
-    if not torch.isfinite(gradient).all() or not gradient.any():
-        return logs
+    lead = tuple(before["loss_objective"].shape)
+    old_params = flat_vector(params, lead).detach()
+    zeros = torch.zeros(lead, dtype=torch.float64, device=old_params.device)
+    logs = dict.fromkeys(("kl", "surrogate_improvement", "expected_improvement", "step_accepted", "step_fraction"),
+                         zeros)
+    logs["entropy"] = before["entropy"]
+    gradient = torch.autograd.grad(-before["loss_objective"].sum(), params, materialize_grads=True)
+    gradient = flat_vector(gradient, lead)
+    movable = torch.isfinite(gradient).all(-1) & gradient.any(-1)
+    if movable.any():
+        # Natural-gradient direction F⁻¹g, and the step that reaches the KL bound under the quadratic model ½ sᵀFs.
+        gradient = torch.where(movable.unsqueeze(-1), gradient, torch.zeros_like(gradient))
+        fisher = loss.fisher_operator(tensordict[(slice(None),) * len(lead) + (slice(None, None, fvp_subsample),)])
+        direction = conjugate_gradient(fisher, gradient, cg_iters)
+        curvature = rowwise_dot(direction, fisher(direction))
+        movable = movable & (curvature > 0)
+    if movable.any():
+        full_step = torch.sqrt(2 * max_kl / curvature.clamp_min(1e-30)).unsqueeze(-1) * direction
+        objective_before = -before["loss_objective"].detach().double()
+        with torch.no_grad():
+            logs.update(_line_search(loss, tensordict, params, old_params, full_step, gradient, objective_before,
+                                     movable, max_kl, line_search_steps, line_search_shrink))
+    return {key: logged(value, lead) for key, value in logs.items()}
 
-    # Natural-gradient direction F⁻¹g, and the step that reaches the KL bound under the quadratic model ½ sᵀFs.
-    fisher = loss.fisher_operator(tensordict[::fvp_subsample])
-    direction = conjugate_gradient(fisher, gradient, cg_iters)
-    curvature = direction @ fisher(direction)
-    if not curvature > 0:
-        return logs
-    full_step = torch.sqrt(2 * max_kl / curvature) * direction
-    objective_before = -before["loss_objective"].item()
 
-    with torch.no_grad():
-        for attempt in range(line_search_steps):
-            fraction = line_search_shrink**attempt
-            vector_to_parameters(old_params + fraction * full_step, params)
-            after = loss(tensordict)
-            improvement = -after["loss_objective"].item() - objective_before
-            kl = after["kl"].item()
-            if math.isfinite(improvement) and math.isfinite(kl) and kl <= max_kl and improvement > 0:
-                expected = fraction * (gradient @ full_step).item()
-                logs.update(kl=kl, surrogate_improvement=improvement, expected_improvement=expected)
-                logs.update(step_accepted=1.0, step_fraction=fraction)
-                return logs
-        vector_to_parameters(old_params, params)  # no step qualified: keep the old policy
-    return logs
+def _line_search(
+    loss: TRPOLoss, tensordict: TensorDictBase, params: list[torch.Tensor], old_params: torch.Tensor,
+    full_step: torch.Tensor, gradient: torch.Tensor, objective_before: torch.Tensor, movable: torch.Tensor,
+    max_kl: float, steps: int, shrink: float,
+) -> dict[str, torch.Tensor]:
+    """Backtrack along ``full_step`` for every replica that can move (``movable``) until its KL is within
+    ``max_kl`` and its surrogate improves; leave the others, and any replica that found no such step, as they were.
+    Returns the logs of the steps taken (zeros where none)."""
+    lead = tuple(movable.shape)
+    accepted = torch.zeros(lead, dtype=torch.bool, device=movable.device)
+    fraction_taken = torch.zeros(lead, dtype=torch.float64, device=movable.device)
+    logs = {key: torch.zeros(lead, dtype=torch.float64, device=movable.device)
+            for key in ("kl", "surrogate_improvement", "expected_improvement")}
+    for attempt in range(steps):
+        fraction = shrink**attempt
+        taken = torch.where(accepted, fraction_taken, torch.full_like(fraction_taken, fraction))
+        assign_flat_(params, old_params + taken.to(old_params.dtype).unsqueeze(-1) * full_step, lead)
+        after = loss(tensordict)
+        improvement = -after["loss_objective"].double() - objective_before
+        kl = after["kl"].double()
+        good = torch.isfinite(improvement) & torch.isfinite(kl) & (kl <= max_kl) & (improvement > 0)
+        new = good & movable & ~accepted
+        expected = fraction * rowwise_dot(gradient, full_step).double()
+        for key, value in (("kl", kl), ("surrogate_improvement", improvement), ("expected_improvement", expected)):
+            logs[key] = torch.where(new, value, logs[key])
+        fraction_taken = torch.where(new, torch.full_like(fraction_taken, fraction), fraction_taken)
+        accepted = accepted | new
+        if bool((accepted | ~movable).all()):
+            break
+    step = old_params + fraction_taken.to(old_params.dtype).unsqueeze(-1) * full_step
+    assign_flat_(params, torch.where(accepted.unsqueeze(-1), step, old_params), lead)  # else keep the old policy
+    return {**logs, "step_accepted": accepted.double(), "step_fraction": fraction_taken}
 
 
 class TRPO(Algorithm):
@@ -294,12 +335,14 @@ class TRPO(Algorithm):
     name = "trpo"
     domains = ("discrete", "continuous")
     Config = TRPOConfig
+    replicable = True
     config: TRPOConfig
 
     def _build(self, env: EnvBase) -> None:
         cfg = self.config
         self.actor, self.value, self.obs_norm = on_policy_networks(
-            self.observation_spec, self.action_spec, cfg.policy_hidden, cfg.value_hidden, cfg.normalize_observations
+            self.observation_spec, self.action_spec, cfg.policy_hidden, cfg.value_hidden, cfg.normalize_observations,
+            replicas=self.replicas,
         )
         self.actor, self.value = self.actor.to(self.device), self.value.to(self.device)
         self.loss = TRPOLoss(self.actor, entropy_coef=cfg.entropy_coef, cg_damping=cfg.cg_damping)
@@ -324,14 +367,16 @@ class TRPO(Algorithm):
             ("next", key) for key in ("observation", "reward", "done", "terminated")
         ]
         batch = batch.select(*keys).to(self.device)
-        self.frames_seen += batch.numel()
+        self.frames_seen += self.frames_in(batch)
         with torch.no_grad():
             self.advantage(batch)  # GAE runs along the last batch dimension, the collector's time dimension
-        flat = batch.reshape(-1)
+        flat = batch.reshape(*self.lead, -1)
         if self.obs_norm is not None:
             self.obs_norm.update(flat.get("observation"))
         advantage = flat.get("advantage")
-        flat.set("advantage", (advantage - advantage.mean()) / (advantage.std() + 1e-8))
+        mean = sample_mean(advantage, self.lead)
+        flat.set("advantage", (advantage - mean.reshape(*mean.shape, *[1] * (advantage.dim() - mean.dim())))
+                 / (sample_std(advantage, self.lead) + 1e-8))
 
         self.loss.snapshot(flat)
         logs = trpo_step(
@@ -349,23 +394,26 @@ class TRPO(Algorithm):
     def _fit_value(self, flat: TensorDictBase) -> dict[str, float]:
         """Adam regression of V on the GAE returns: ``vf_iters`` epochs of shuffled ``vf_batch_size`` minibatches."""
         cfg = self.config
+        lead = self.lead
         observation, target = flat.get("observation"), flat.get("value_target")
         value_before = flat.get("state_value")
-        explained_variance = 1.0 - ((target - value_before).var() / target.var().clamp_min(1e-8)).item()
-        epoch_losses = [torch.nn.functional.mse_loss(value_before, target).item()]
+        explained_variance = 1.0 - sample_var(target - value_before, lead) / sample_var(target, lead).clamp_min(1e-8)
+        epoch_losses = [mse_per_replica(value_before, target, lead).detach()]
+        samples = flat.shape[len(lead)]
         for _ in range(cfg.vf_iters):
             epoch_losses = []
-            for index in torch.randperm(flat.numel(), device=self.device).split(cfg.vf_batch_size):
-                value_loss = torch.nn.functional.mse_loss(
-                    self.value.module(observation[index]), target[index]
-                )
+            for index in torch.randperm(samples, device=self.device).split(cfg.vf_batch_size):
+                take = (slice(None),) * len(lead) + (index,)  # the same minibatch places in every replica's batch
+                value_loss = mse_per_replica(self.value.module(observation[take]), target[take], lead)
                 self.value_optimizer.zero_grad()
-                value_loss.backward()
+                value_loss.sum().backward()
                 if math.isfinite(cfg.max_grad_norm):  # the default, inf, clips nothing: skip the norm's cost
-                    torch.nn.utils.clip_grad_norm_(self.value.parameters(), cfg.max_grad_norm)
+                    clip_grad_norm_(self.value.parameters(), cfg.max_grad_norm, lead)
                 self.value_optimizer.step()
-                epoch_losses.append(value_loss.item())
-        return {"value_loss": sum(epoch_losses) / len(epoch_losses), "explained_variance": explained_variance}
+                epoch_losses.append(value_loss.detach())
+        mean_loss = torch.stack(epoch_losses).double().mean(0) if lead else sum(map(float, epoch_losses)) / len(epoch_losses)
+        return {"value_loss": logged(torch.as_tensor(mean_loss), lead) if lead else mean_loss,
+                "explained_variance": logged(explained_variance, lead)}
 
     def modules(self) -> dict[str, nn.Module]:
         # The observation statistics live in both networks (one shared RunningNorm), so both state dicts carry them.
