@@ -21,6 +21,7 @@ from torchrl.objectives.value import GAE
 from sidewalk._checks import check_int, check_range
 from sidewalk.algos.base import AlgoConfig, Algorithm, FixedExplorationPolicy
 from sidewalk.algos.networks import on_policy_networks
+from sidewalk.algos.replicas import broadcast_lead, clip_grad_norm_, logged, sample_mean, sample_std
 
 
 @dataclass
@@ -80,17 +81,22 @@ def clipped_ppo_update(
     the observation statistics gathered over the masked-in agent-steps only, and ``algo.loss`` is expected to read
     the same mask (``loss_mask_key``); without it the advantage estimator standardises (``average_gae``)."""
     cfg = algo.config
-    algo.frames_seen += batch.numel()
+    lead = algo.lead
+    algo.frames_seen += algo.frames_in(batch)
     batch = batch.to(algo.device)
     with torch.no_grad():
         algo.advantage(batch)  # GAE needs the (worlds, time) layout: time is the last batch dimension
+        if lead:  # each replica's advantages standardised over its own batch (GAE's average_gae is off)
+            advantage = batch.get(algo.advantage.tensor_keys.advantage)
+            mean = broadcast_lead(sample_mean(advantage, lead), advantage)
+            batch.set(algo.advantage.tensor_keys.advantage, (advantage - mean) / (sample_std(advantage, lead) + 1e-8))
         if mask_key is not None:
             mask = batch.get(mask_key)
             advantage = batch.get(algo.advantage.tensor_keys.advantage)
             kept = advantage[mask.expand_as(advantage)]
             if kept.numel() > 1:
                 batch.set(algo.advantage.tensor_keys.advantage, (advantage - kept.mean()) / kept.std().clamp_min(1e-6))
-    flat = batch.reshape(-1)
+    flat = batch.reshape(*lead, -1)
     if algo.obs_norm is not None:
         observation = flat.get(observation_key)
         if mask_key is not None:
@@ -102,20 +108,25 @@ def clipped_ppo_update(
         dist = algo.actor.get_dist(flat.copy())
         flat.set(log_prob_key, dist.log_prob(flat.get(action_key)))
     logs: dict[str, list[torch.Tensor]] = {key: [] for key in log_keys}
+    samples = flat.shape[len(lead)]
     for _ in range(cfg.epochs):
-        order = torch.randperm(flat.numel(), generator=algo._generator).to(algo.device)
-        for start in range(0, flat.numel(), cfg.minibatch_size):
-            minibatch = flat[order[start : start + cfg.minibatch_size]]
+        order = torch.randperm(samples, generator=algo._generator).to(algo.device)
+        for start in range(0, samples, cfg.minibatch_size):
+            # The same minibatch places in every replica's batch.
+            minibatch = flat[(slice(None),) * len(lead) + (order[start : start + cfg.minibatch_size],)]
             losses = algo.loss(minibatch)
+            if lead:  # the loss reduces nothing (reduction="none"): each replica's mean is its own loss
+                losses = {key: sample_mean(value, lead) for key, value in losses.items() if key in log_keys
+                          or key.startswith("loss_")}
             loss = sum(value for key, value in losses.items() if key.startswith("loss_"))
             algo.optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(algo.loss.parameters(), cfg.max_grad_norm)
+            loss.sum().backward()
+            clip_grad_norm_(algo.loss.parameters(), cfg.max_grad_norm, lead)
             algo.optimizer.step()
             for key, values in logs.items():
                 if key in losses:
                     values.append(losses[key].detach())
-    return {key: float(torch.stack(values).mean()) for key, values in logs.items() if values}
+    return {key: logged(torch.stack(values).mean(0), lead) for key, values in logs.items() if values}
 
 
 class PPO(Algorithm):
@@ -124,17 +135,20 @@ class PPO(Algorithm):
     name = "ppo"
     domains = ("discrete", "continuous")
     Config = PPOConfig
+    replicable = True
 
     def _build(self, env: EnvBase) -> None:
         cfg: PPOConfig = self.config
         actor, critic, self.obs_norm = on_policy_networks(
-            self.observation_spec, self.action_spec, cfg.hidden, cfg.hidden, cfg.normalize_observations, cfg.mean_bound
+            self.observation_spec, self.action_spec, cfg.hidden, cfg.hidden, cfg.normalize_observations, cfg.mean_bound,
+            replicas=self.replicas,
         )
         self.actor, self.critic = actor.to(self.device), critic.to(self.device)
-        self.advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=self.critic, average_gae=True)
+        self.advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=self.critic,
+                             average_gae=not self.replicas)
         self.loss = ClipPPOLoss(
             self.actor, self.critic, clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coef,
-            critic_coeff=cfg.critic_coef, normalize_advantage=False,
+            critic_coeff=cfg.critic_coef, normalize_advantage=False, reduction="none" if self.replicas else "mean",
         )
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr, foreach=True)  # see TRPO's value optimizer
         self._generator = torch.Generator().manual_seed(0)

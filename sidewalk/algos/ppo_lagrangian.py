@@ -147,6 +147,7 @@ class PPOLagrangian(PPO):
     name = "ppo_lagrangian"
     domains = ("discrete", "continuous")
     Config = PPOLagrangianConfig
+    replicable = False  # its multiplier and cost critic have no replica axis yet: replicas train one after another
 
     def _build(self, env: EnvBase) -> None:
         super()._build(env)
