@@ -76,7 +76,7 @@ class Experiment:
     evaluation: EvalSchema = dataclasses.field(default_factory=lambda: EvalSchema(**NOMINAL_EVAL))
     shield: bool = False  # the safety shield guards the learner's actions (training and evaluation)
     other_play: bool = False  # self-play partners act through a random mirror of the game (sidewalk.symmetry)
-    replicas: int = 1  # seeds seed .. seed+replicas-1 trained together in this process (sidewalk.group)
+    replicas: int = 1  # seeds seed .. seed+replicas-1 trained together in this process (sidewalk.experiment.Trial)
 
     @property
     def eval_env_params(self) -> Any:

@@ -1,5 +1,5 @@
 """Where a trial stands between iterations: its metrics rows, iterations done, wall clock, and the best evaluation so
-far, whose policy the absolute metric re-evaluates (``sidewalk.experiment.Trial``, ``sidewalk.group.GroupTrial``)."""
+far, whose policy the absolute metric re-evaluates (``sidewalk.experiment.Trial``)."""
 
 from __future__ import annotations
 

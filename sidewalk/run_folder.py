@@ -45,7 +45,7 @@ METRICS = "metrics.csv"
 METRICS_COMPRESSED = "metrics.csv.xz"
 SUMMARY = "summary.json"
 LOCK = ".writer.lock"
-# In a folder of replicas trained together (replicas=R, sidewalk.group): the group's own config, history and checkpoint.
+# In a folder of replicas trained together (replicas=R, sidewalk.experiment.Trial): the group's own config, history and checkpoint.
 GROUP_DIR = ".group"
 # Keys a resume may change: the flag itself and what is kept after the run, neither of which changes a number.
 RESUME_MAY_CHANGE = ("resume", "keep_checkpoint")

@@ -1,5 +1,6 @@
-"""Several seeds in one process (``replicas=R``, ``sidewalk.group``): a replica is the run it would be alone, its
-folder is an ordinary run folder, and a killed or pre-empted group resumes to the same numbers."""
+"""Several seeds in one trial (``replicas=R``): a run is the same for the same seed and R, a replica's update is its
+lone learner's, a learner without a replica axis trains each replica as its lone run, every replica's folder is an
+ordinary run folder, and a killed or pre-empted group resumes to the same numbers."""
 
 from __future__ import annotations
 
@@ -13,11 +14,16 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
+from sidewalk.algos.replicas import replica_state
 from sidewalk.config import register_schemas, validate
-from sidewalk.experiment import Trial
-from sidewalk.group import GroupTrial, replica_dir
+from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
+from sidewalk.experiment import Trial, replica_dir
+from sidewalk.registry import LEARNERS
 from sidewalk.report import Settings, write_report
 from sidewalk.report.runs import find_run_folders, load_run
 from sidewalk.run_folder import GROUP_DIR, read_torch_file
@@ -54,32 +60,77 @@ def metrics(run_dir: Path) -> pd.DataFrame:
     return pd.read_csv(run_dir / "metrics.csv").drop(columns=WALL_CLOCK)
 
 
-@pytest.mark.parametrize("setup", ["dqn-grid", "trpo-continuous"])
-def test_a_group_of_one_is_a_lone_run(tmp_path, setup):
-    exp = experiment(*SETUPS[setup], "seed=5")
-    Trial(exp, tmp_path / "lone").run(progress=False)
-    GroupTrial(exp, tmp_path / "group").run(progress=False)
-    pd.testing.assert_frame_equal(metrics(replica_dir(tmp_path / "group", 5)), metrics(tmp_path / "lone"))
+@pytest.mark.parametrize("setup", ["dqn-grid", "trpo-continuous", "ppo-continuous-random"])
+def test_a_group_is_the_same_for_the_same_seed_and_replicas(tmp_path, setup):
+    exp = experiment(*SETUPS[setup], "seed=3", "replicas=2")
+    for name in ("first", "second"):
+        Trial(exp, tmp_path / name).run(progress=False)
+    for seed in (3, 4):
+        pd.testing.assert_frame_equal(metrics(replica_dir(tmp_path / "first", seed)),
+                                      metrics(replica_dir(tmp_path / "second", seed)), check_exact=True)
+    assert not metrics(replica_dir(tmp_path / "first", 3)).equals(metrics(replica_dir(tmp_path / "first", 4)))
 
 
-@pytest.mark.parametrize("setup", list(SETUPS))
-def test_a_replica_equals_a_group_of_it_alone(tmp_path, setup):
-    """Replica seed 4 of the group of seeds 3, 4, 5 against the group of seed 4 alone: every metric equal."""
-    GroupTrial(experiment(*SETUPS[setup], "seed=3", "replicas=3"), tmp_path / "three").run(progress=False)
-    GroupTrial(experiment(*SETUPS[setup], "seed=4"), tmp_path / "one").run(progress=False)
-    alone = metrics(replica_dir(tmp_path / "one", 4))
-    pd.testing.assert_frame_equal(metrics(replica_dir(tmp_path / "three", 4)), alone)
-    assert not metrics(replica_dir(tmp_path / "three", 3)).equals(alone)  # the replicas' streams differ
+@pytest.mark.parametrize("setup", ["iql-selfplay", "ppo-lagrangian-continuous"])
+def test_without_a_replica_axis_a_replica_is_its_lone_run(tmp_path, setup):
+    """Learners that train their replicas one after another (each on its own stream): replica seed 4 of the group
+    of seeds 3, 4, 5 is the lone run of seed 4, metric for metric."""
+    Trial(experiment(*SETUPS[setup], "seed=3", "replicas=3"), tmp_path / "three").run(progress=False)
+    Trial(experiment(*SETUPS[setup], "seed=4"), tmp_path / "lone").run(progress=False)
+    pd.testing.assert_frame_equal(metrics(replica_dir(tmp_path / "three", 4)), metrics(tmp_path / "lone"))
 
 
-@pytest.mark.parametrize("setup", ["trpo-continuous", "ppo-continuous-random"])
-def test_the_vectorised_update_equals_one_replica_at_a_time(tmp_path, setup):
-    exp = experiment(*SETUPS[setup], "seed=3", "replicas=3")
-    GroupTrial(exp, tmp_path / "stacked").run(progress=False)
-    GroupTrial(exp, tmp_path / "looped", vectorize=False).run(progress=False)
-    for seed in (3, 4, 5):
-        pd.testing.assert_frame_equal(metrics(replica_dir(tmp_path / "stacked", seed)),
-                                      metrics(replica_dir(tmp_path / "looped", seed)), check_exact=True)
+LEARNER_WORLDS = {
+    "dqn": (DiscreteSidewalkEnv, {"learning_starts": 0, "batch_size": 32, "buffer_size": 1000}),
+    "trpo": (ContinuousSidewalkEnv, {}),
+    "ppo": (ContinuousSidewalkEnv, {"minibatch_size": 32}),
+}
+
+
+def _replay_buffer() -> TensorDictReplayBuffer:
+    return TensorDictReplayBuffer(storage=LazyTensorStorage(1000), batch_size=32)
+
+
+def _updated(algo, batch) -> dict:
+    """``algo``'s policy state after one update on ``batch`` with the random draws of seed 7."""
+    torch.manual_seed(7)
+    algo.update(batch, _replay_buffer())
+    return algo.policy_state_dict()
+
+
+@pytest.mark.parametrize("name", list(LEARNER_WORLDS))
+def test_a_replica_updates_as_its_lone_learner(name):
+    """One update of a learner with a replica axis (R = 3) against a lone learner holding replica 1's networks, on
+    replica 1's batch with the same random draws: the same networks after it (up to float rounding); and replica 1
+    ends exactly where it did when another replica's batch is changed."""
+    from sidewalk.views import make_view
+
+    cls = LEARNERS.get(name)
+    core_cls, settings = LEARNER_WORLDS[name]
+    config = cls.Config(frames_per_batch=64, **settings)
+    env = make_view("ego", core_cls(8, seed=0), opponent="random")
+
+    def replicated():
+        torch.manual_seed(0)
+        return cls(config, env, replicas=3)
+
+    lone = cls(config, env)
+    lone.load_state_dict(replica_state(replicated().state_dict(), lone.state_dict(), 1))
+    collector = Collector(env, lone.collection_policy(), frames_per_batch=64, total_frames=-1,
+                          auto_register_policy_transforms=False)
+    batches = [next(iter(collector)).clone() for _ in range(3)]
+    collector.shutdown()
+    layout = lone.policy_state_dict()
+    together = replica_state(_updated(replicated(), torch.stack(batches)), layout, 1)
+    alone = _updated(lone, batches[1].clone())
+    for module, state in alone["modules"].items():
+        for key, value in state.items():
+            torch.testing.assert_close(together["modules"][module][key], value, rtol=1e-4, atol=1e-5,
+                                       msg=f"{name}: {module}.{key}")
+    changed = replica_state(_updated(replicated(), torch.stack([batches[0], batches[1], batches[0]])), layout, 1)
+    for module, state in together["modules"].items():
+        for key, value in state.items():
+            assert torch.equal(changed["modules"][module][key], value), f"{name}: {module}.{key}"
 
 
 def main_py(*overrides: str, timeout: float = 600, check: bool = True) -> subprocess.CompletedProcess:
@@ -98,7 +149,7 @@ def test_replica_folders_are_ordinary_run_folders(tmp_path):
     assert find_run_folders([group]) == [replica_dir(group, 1), replica_dir(group, 2)]
     replica, alone = load_run(replica_dir(group, 2)), load_run(lone)
     assert replica.config == alone.config  # the replica's config.yaml is the lone run's, seed 2 and all
-    pd.testing.assert_frame_equal(replica.metrics.drop(columns=WALL_CLOCK), alone.metrics.drop(columns=WALL_CLOCK))
+    assert list(replica.metrics.columns) == list(alone.metrics.columns)
     assert {p.name for p in replica_dir(group, 2).iterdir()} >= {"config.yaml", "history.jsonl", "metrics.csv",
                                                                  "summary.json", "policy.pt"}
     summary = json.loads((replica_dir(group, 2) / "summary.json").read_text())

@@ -1,10 +1,11 @@
-"""Replicas: the update of R seeds of one learner, one after another (``algo.update`` in a loop) or all at once
-(``sidewalk.algos.stacked.vectorized_update``), in ms per iteration (all R updates), one torch thread.
+"""Replicas: the update of R seeds of one learner, R lone learners one after another (``algo.update`` in a loop)
+or one learner with a replica axis (``replicas=R``, ``sidewalk.algos.replicas``) on the same batches laid out
+(R, worlds, time), in ms per iteration (all R updates), one torch thread.
 
 Each replica is the learner at its defaults on the continuous sidewalk's ego view against the random opponent
 (``default_num_envs`` worlds, seed r), with one collector batch of its own (``frames_per_batch`` frames: 2048 from
-128 worlds for TRPO and PPO). Both ways start from copies of the same learners and update them on the same batches,
-each iteration's time the median of ``repeats`` after one untimed warm-up iteration (the first creates Adam's state).
+128 worlds for TRPO and PPO). Both ways update on the same batches, each iteration's time the median of ``repeats``
+after one untimed warm-up iteration (the first creates Adam's state).
 
     python -m sidewalk.bench.replicas                       # TRPO and PPO, R = 5
     python -m sidewalk.bench.replicas --replicas 3 --learners trpo --repeats 5
@@ -24,11 +25,9 @@ from torchrl.collectors import Collector
 from torchrl.envs import EnvBase
 
 from sidewalk.algos.base import Algorithm
-from sidewalk.algos.stacked import vectorized_update
 from sidewalk.bench.common import torch_threads
 from sidewalk.envs import ContinuousSidewalkEnv
 from sidewalk.registry import LEARNERS
-from sidewalk.streams import ReplicaStreams
 from sidewalk.views import make_view
 
 LEARNER_NAMES = ("trpo", "ppo")
@@ -71,37 +70,37 @@ def _median_ms(iteration: Callable[[], object], repeats: int) -> float:
 
 
 def time_learner(name: str, replicas: int, repeats: int) -> dict[str, Any]:
-    """ms per iteration of ``replicas`` updates of learner ``name``, looped and stacked, from two identical sets."""
-    (looped, envs), (stacked, _) = replica_learners(name, replicas), replica_learners(name, replicas)
+    """ms per iteration of ``replicas`` updates of learner ``name``: R lone learners looped, and one learner with a
+    replica axis."""
+    looped, envs = replica_learners(name, replicas)
     batches = collect_batches(looped, envs)
-    loop_streams, stacked_streams = ReplicaStreams(range(replicas)), ReplicaStreams(range(replicas))
-    updater = vectorized_update(stacked)
-    if updater is None:
-        raise RuntimeError(f"{name}: no stacked update for these learners")
+    cls = LEARNERS.get(name)
+    torch.manual_seed(0)
+    replicated = cls(cls.Config(), envs[0], replicas=replicas)
+    stacked = torch.stack(batches)  # (R, worlds, time): each replica's batch on the replica axis
 
     def loop() -> None:
-        for replica, (algo, batch) in enumerate(zip(looped, batches)):
-            with loop_streams.use(replica):
-                algo.update(batch.clone())
+        for algo, batch in zip(looped, batches):
+            algo.update(batch.clone())
 
     def together() -> None:
-        updater.update([batch.clone() for batch in batches], stacked_streams)
+        replicated.update(stacked.clone())
 
-    loop_ms, stacked_ms = _median_ms(loop, repeats), _median_ms(together, repeats)
-    return {"learner": name, "replicas": replicas, "looped_ms": loop_ms, "stacked_ms": stacked_ms,
-            "speedup": loop_ms / stacked_ms}
+    loop_ms, replicated_ms = _median_ms(loop, repeats), _median_ms(together, repeats)
+    return {"learner": name, "replicas": replicas, "looped_ms": loop_ms, "replicated_ms": replicated_ms,
+            "speedup": loop_ms / replicated_ms}
 
 
-def time_stacked_updates(replicas: int = 5, repeats: int = 3, learners: Sequence[str] = LEARNER_NAMES
+def time_replica_updates(replicas: int = 5, repeats: int = 3, learners: Sequence[str] = LEARNER_NAMES
                          ) -> list[dict[str, Any]]:
-    """ms per iteration of ``replicas`` updates, looped and stacked, for each learner, one torch thread; prints one
-    line each and returns the rows."""
+    """ms per iteration of ``replicas`` updates, looped and with a replica axis, for each learner, one torch thread;
+    prints one line each and returns the rows."""
     rows = []
     with torch_threads(1):
         for name in learners:
             row = time_learner(name, replicas, repeats)
             rows.append(row)
-            print(f"{name}: {replicas} replicas, looped {row['looped_ms']:.1f} ms, stacked {row['stacked_ms']:.1f} ms "
+            print(f"{name}: {replicas} replicas, looped {row['looped_ms']:.1f} ms, replica axis {row['replicated_ms']:.1f} ms "
                   f"per iteration ({row['speedup']:.2f}x)", flush=True)
     return rows
 
@@ -112,7 +111,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--learners", nargs="+", choices=LEARNER_NAMES, default=list(LEARNER_NAMES))
     args = parser.parse_args(argv)
-    time_stacked_updates(args.replicas, args.repeats, args.learners)
+    time_replica_updates(args.replicas, args.repeats, args.learners)
 
 
 if __name__ == "__main__":
