@@ -153,20 +153,12 @@ class Episode(NamedTuple):
 
 def scripted_world(domain: str, opponent: str, seed: int, overrides: list[str]):
     """The validated experiment config of scripted agents, and one world (a core env) built from it."""
-    from hydra import compose, initialize_config_dir
-
-    from sidewalk.config import register_schemas, validate
+    from sidewalk.compose import compose_experiment
     from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 
-    register_schemas()
     # The algorithm is irrelevant here, but validation checks it against the domain, so pick one that fits.
     algo = "dqn" if domain == "discrete" else "trpo"
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose(
-            config_name="config",
-            overrides=[f"env={domain}", f"opponent={opponent}", f"algo={algo}", f"seed={seed}", *overrides],
-        )
-    experiment = validate(cfg)
+    experiment = compose_experiment([f"env={domain}", f"opponent={opponent}", f"algo={algo}", f"seed={seed}", *overrides])
     core_cls = DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
     return experiment, core_cls(1, device="cpu", seed=seed, params=experiment.env_params)
 

@@ -57,7 +57,7 @@ KEPT_TRAIN = ("success", "collision", "return", "cost", "episodes", "shield", "l
 def probe_overrides(job_overrides: Sequence[str]) -> list[str]:
     """A job's overrides made into its probe's: the job's config, seed 0 alone, a few iterations (past an off-policy
     learner's ``learning_starts``), one evaluation at the end."""
-    from sidewalk.reproduce import compose
+    from sidewalk.compose import compose
 
     cfg = compose([*job_overrides, *PROBE_OVERRIDES])
     starts = int(cfg.algo.get("learning_starts", 0) or 0)
@@ -68,11 +68,10 @@ def probe_overrides(job_overrides: Sequence[str]) -> list[str]:
 
 def probe_job(job_overrides: Sequence[str], work_dir: Path) -> pd.DataFrame:
     """The probe of one job: its metrics, one row per iteration, wall clock dropped."""
-    from sidewalk.config import validate
+    from sidewalk.compose import compose_experiment
     from sidewalk.experiment import Trial
-    from sidewalk.reproduce import compose
 
-    experiment = validate(compose(probe_overrides(job_overrides)))
+    experiment = compose_experiment(probe_overrides(job_overrides))
     Trial(experiment, work_dir).run(progress=False)
     metrics = pd.read_csv(work_dir / "metrics.csv")
     return metrics.drop(columns=[column for column in WALL_CLOCK if column in metrics.columns])
@@ -229,9 +228,9 @@ def _has_runs(runs: Path, job: str, overrides: Sequence[str]) -> bool:
         return any((runs / job).rglob("summary.json"))
     from omegaconf import OmegaConf
 
+    from sidewalk.compose import compose
     from sidewalk.report.conditions import condition_config
     from sidewalk.report.runs import CONFIG, flatten
-    from sidewalk.reproduce import compose
 
     def condition(cfg: Any) -> dict[str, Any]:
         return condition_config(flatten(OmegaConf.to_container(cfg, resolve=True)))

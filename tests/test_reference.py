@@ -96,9 +96,9 @@ def test_one_deterministic_episode_that_ends_otherwise_is_rounding_only_after_th
 def test_collected_runs_read_back_as_the_runs(tmp_path):
     """The committed small files of a run (metrics compressed at float32 precision) give the report what the run
     folder gives it."""
+    from sidewalk.compose import compose
     from sidewalk.config import validate
     from sidewalk.experiment import Trial
-    from sidewalk.reproduce import compose
 
     sweep = tmp_path / "sweeps" / "fig0"  # a sweep folder (multirun.yaml) in the root that is collected
     overrides = ["iterations=3", "eval_every=3", "eval_episodes=4", "num_envs=4", "logger=none", "checkpoint_every=0"]

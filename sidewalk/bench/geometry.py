@@ -30,7 +30,8 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tqdm import tqdm
 
-from sidewalk.bench.common import compose_experiment, format_table, torch_threads
+from sidewalk.bench.common import format_table, torch_threads
+from sidewalk.compose import compose_experiment
 
 EPISODES = 1024
 PRM_SEEDS = 1000

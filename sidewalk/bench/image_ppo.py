@@ -29,7 +29,7 @@ def run(algos: tuple[str, ...] = ("ippo", "mappo"), repeats: int = 4, threads: l
     from torchrl.envs import RewardSum, TransformedEnv
 
     from sidewalk.algos import ALGORITHMS
-    from sidewalk.bench.common import compose_experiment
+    from sidewalk.compose import compose_experiment
     from sidewalk.experiment import make_view
 
     torch.set_num_threads((threads or [1])[0])

@@ -84,7 +84,8 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.modules.models.multiagent import MultiAgentMLP
 from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
-from sidewalk.bench.common import compose_experiment, format_table, torch_threads
+from sidewalk.bench.common import format_table, torch_threads
+from sidewalk.compose import compose_experiment
 
 NUM_ENVS = (4096,)
 THREADS = (1, 2)
