@@ -383,7 +383,7 @@ def test_ppo_loss_runs_on_the_continuous_ego_view():
 
 
 def test_bench_section_reports_every_view():
-    from sidewalk.bench.views import run
+    from sidewalk.bench.view_speed import run
 
     rows = run(num_envs=4, threads=1, seconds=0.01)
     views = {(row["face"], row["view"], row["domain"], row["opponent"]) for row in rows}
