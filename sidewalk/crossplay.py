@@ -40,10 +40,10 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
+from sidewalk.evaluate import distinct_rows
 from sidewalk.experiment import EVAL_SEED_OFFSET
 from sidewalk.opponents.base import ACTION_KEY, Opponent
 from sidewalk.opponents.policy import (
@@ -345,25 +345,6 @@ def _core_class(domain: str):
 
 def _n_agents(domain: str, world: Any) -> int:
     return _core_class(domain).layout_for(world).n_agents
-
-
-def distinct_rows(flat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(the first row of each distinct row of ``flat`` (B, D), the distinct row of every row), exactly.
-
-    Rows are told apart by one random projection (a sort of B numbers, where ``torch.unique(dim=0)`` sorts B rows
-    of D), checked to reproduce every row; a collision, that never happens in practice, falls back to the sort."""
-    if bool((flat == flat[:1]).all()):  # noise 0, deterministic players: every world plays the same episode
-        return torch.zeros(1, dtype=torch.long, device=flat.device), flat.new_zeros(flat.shape[0], dtype=torch.long)
-    values = flat.to(torch.float64)
-    weights = torch.rand(values.shape[1], dtype=torch.float64, generator=torch.Generator().manual_seed(0))
-    _, inverse = torch.unique(values @ weights.to(values.device), return_inverse=True)
-    first_of = torch.full((int(inverse.max()) + 1,), flat.shape[0], dtype=torch.long, device=flat.device)
-    first_of.scatter_reduce_(0, inverse, torch.arange(flat.shape[0], device=flat.device), reduce="amin")
-    if not torch.equal(flat[first_of][inverse], flat):
-        _, inverse = torch.unique(flat, dim=0, return_inverse=True)
-        first_of = torch.full((int(inverse.max()) + 1,), flat.shape[0], dtype=torch.long, device=flat.device)
-        first_of.scatter_reduce_(0, inverse, torch.arange(flat.shape[0], device=flat.device), reduce="amin")
-    return first_of, inverse
 
 
 class DistinctPlayer(Opponent):

@@ -237,19 +237,6 @@ def test_a_partner_that_cannot_play_the_other_role_leaves_its_cell_empty_with_th
     assert "cannot play agent 1" in empty["skipped"] and pd.isna(empty["success"]) and pd.isna(empty["episodes"])
 
 
-def test_distinct_rows_are_exact():
-    import torch
-
-    from sidewalk.crossplay import distinct_rows
-
-    flat = torch.randint(0, 3, (64, 5), dtype=torch.uint8, generator=torch.Generator().manual_seed(1))
-    for rows in (flat, flat[:1].expand(8, 5)):
-        first_of, inverse = distinct_rows(rows)
-        assert torch.equal(rows[first_of][inverse], rows)
-        assert len(first_of) == len(torch.unique(rows, dim=0))
-        assert all(int(first) == int((inverse == group).nonzero()[0]) for group, first in enumerate(first_of))
-
-
 def _walk(lateral_0: float, lateral_1: float, steps: int = 15, length: float = 14.0) -> np.ndarray:
     """Positions (T, 1, 2, 2) of agent 0 walking along +along and agent 1 the other way, at fixed lateral places,
     as (lateral, along): the grid's (row, col)."""

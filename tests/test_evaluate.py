@@ -55,6 +55,15 @@ def test_policy_runs_once_per_distinct_observation_of_the_running_worlds():
     assert torch.equal(out.get("action")[7], out.get("action")[0])  # a finished world gets a valid action
 
 
+def test_distinct_rows_are_exact():
+    flat = torch.randint(0, 3, (64, 5), dtype=torch.uint8, generator=torch.Generator().manual_seed(1))
+    for rows in (flat, flat[:1].expand(8, 5)):
+        first_of, inverse = evaluation.distinct_rows(rows)
+        assert torch.equal(rows[first_of][inverse], rows)
+        assert len(first_of) == len(torch.unique(rows, dim=0))
+        assert all(int(first) == int((inverse == group).nonzero()[0]) for group, first in enumerate(first_of))
+
+
 @pytest.mark.parametrize(
     "overrides",
     [("env=discrete", "noise=0.1"), ("env=continuous", "noise=0.5"), ("env=discrete", "opponent=centralized")],
