@@ -90,7 +90,7 @@ def make_view(experiment: Experiment, num_envs: int, seed: int, env_params: Any 
     if experiment.opponent == "centralized":
         return CentralizedView(core, shield=experiment.shield)
     if experiment.opponent == "self":
-        return SelfPlayView(core, shield=experiment.shield, other_play=experiment.other_play, legacy_keys=False)
+        return SelfPlayView(core, shield=experiment.shield, other_play=experiment.other_play)
     others = tuple(agent for agent in range(core.n_agents) if agent != experiment.ego)
     opponent = make_opponent(experiment.opponent, core, controlled=others, ego=experiment.ego,
                              **experiment.opponent_params)

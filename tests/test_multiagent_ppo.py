@@ -38,7 +38,7 @@ def view(domain: str, num_envs: int = 4, seed: int = 0) -> TransformedEnv:
         core = ContinuousSidewalkEnv(num_envs, seed=seed)
     else:
         core = DiscreteSidewalkEnv(num_envs, seed=seed, params=DiscreteParams(observation=domain))
-    return TransformedEnv(SelfPlayView(core, legacy_keys=False), RewardSum())
+    return TransformedEnv(SelfPlayView(core), RewardSum())
 
 
 def learner(name: str, domain: str, num_envs: int = 4, **config) -> tuple[IPPO, TransformedEnv]:

@@ -35,7 +35,7 @@ def one_thread():
 
 def make_learner(name: str, num_envs: int = 4, **overrides):
     torch.manual_seed(0)
-    env = TransformedEnv(SelfPlayView(DiscreteSidewalkEnv(num_envs, seed=0), legacy_keys=False), RewardSum())
+    env = TransformedEnv(SelfPlayView(DiscreteSidewalkEnv(num_envs, seed=0)), RewardSum())
     cls = ALGORITHMS[name]
     return cls(cls.Config(**overrides), env), env
 
@@ -220,7 +220,7 @@ def test_qmix_advantage_learning_pays_the_mixed_gap_to_the_greedy_joint_action()
 
 @pytest.mark.parametrize("name", LEARNERS)
 def test_share_params_false_gives_agents_their_own_q(name):
-    observation = SelfPlayView(DiscreteSidewalkEnv(1, seed=0), legacy_keys=False).reset().get(OBS)[:, :1]  # agent 0's view
+    observation = SelfPlayView(DiscreteSidewalkEnv(1, seed=0)).reset().get(OBS)[:, :1]  # agent 0's view
     same_view = observation.expand(1, 2, *observation.shape[2:])  # both agents see it
     for share in (True, False):
         algo, _ = make_learner(name, share_params=share)

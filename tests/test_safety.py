@@ -120,7 +120,7 @@ def test_views_expose_cost_like_reward(kind):
     elif kind == "centralized":
         assert torch.equal(rollout["next", "cost"].squeeze(-1), world.sum(-1))
     else:
-        assert torch.equal(rollout["next", "agents", "cost"].squeeze(-1), world)
+        assert torch.equal(rollout["next", "agents", "info", "cost"].squeeze(-1), world)
     assert world.sum() > 0
 
 

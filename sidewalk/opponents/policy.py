@@ -277,7 +277,7 @@ class PolicyOpponent(Opponent):
 
         core = _env_class(partner.domain)(1, device=env.device, seed=0, params=partner.env_params)
         if partner.opponent == "self":
-            view = SelfPlayView(core, legacy_keys=False)
+            view = SelfPlayView(core)
         elif partner.opponent == "centralized":
             view = CentralizedView(core)
         else:
