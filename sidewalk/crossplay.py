@@ -43,7 +43,7 @@ import pandas as pd
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from sidewalk.evaluate import distinct_rows
+from sidewalk.evaluate import distinct_rows, evaluate, run_episodes
 from sidewalk.experiment import EVAL_SEED_OFFSET
 from sidewalk.opponents.base import ACTION_KEY, Opponent
 from sidewalk.opponents.policy import (
@@ -471,26 +471,20 @@ class Arena:
     def evaluate(self, row: Player, column: Column) -> dict[str, float]:
         """Metrics (``sidewalk.evaluate``'s keys, the row's agent as ego) of ``row`` with ``column`` playing every
         other agent."""
-        from sidewalk.evaluate import evaluate
-        from sidewalk.opponents.base import make_opponent
-        from sidewalk.views import EgoView
+        from sidewalk.views import view_for_opponent
 
         ego = row.agent
-        core = self.core(ego)
-        if column.player is None:
-            others = tuple(agent for agent in range(core.n_agents) if agent != ego)
-            opponent = make_opponent(column.opponent or column.name, core, controlled=others, ego=ego,
-                                     **column.params)
+        if column.player is None:  # a scripted partner: a registered opponent's name, with its settings
+            partner = column.opponent or column.name
         else:
-            opponent = self._player(column.player, ego, as_row=False)
-        view = EgoView(core, opponent, ego=ego)
+            partner = self._player(column.player, ego, as_row=False)
+        view = view_for_opponent(self.core(ego), partner, ego, opponent_kwargs=column.params)
         policy = LearnedAgent(view, self._player(row, ego, as_row=True))
         return evaluate(view, policy, seed=self.world_seed, deterministic=False)
 
     def convention(self, row: Player) -> dict[str, Any]:
         """The convention (``convention``) of ``row``'s policy playing every agent of the two-agent sidewalk, on the
         matrix's worlds; "n/a" for other layouts."""
-        from sidewalk.evaluate import run_episodes
         from sidewalk.views import EgoView
 
         core = self.core(row.agent)

@@ -286,6 +286,18 @@ def test_make_view_builds_each_kind():
     assert isinstance(make_view("centralized", core("continuous")), CentralizedView)
 
 
+def test_view_for_opponent_builds_the_view_an_experiment_names():
+    from sidewalk.views import SelfPlayView, view_for_opponent
+
+    assert isinstance(view_for_opponent(core("discrete"), "centralized", ego=1), CentralizedView)  # ego unread
+    assert view_for_opponent(core("discrete"), "self", other_play=True).other_play
+    view = view_for_opponent(core("discrete", layout="circle", n_agents=3), "random", 1, end_on_ego_done=True)
+    assert isinstance(view, EgoView) and view.ego == 1 and view.end_on_ego_done and view.opponent.controlled == [0, 2]
+    assert isinstance(make_view("self", core("discrete")), SelfPlayView)
+    with pytest.raises(ValueError, match="other_play=True trains self-play partners"):
+        view_for_opponent(core("discrete"), "random", other_play=True)
+
+
 def test_make_view_names_the_valid_kinds():
     with pytest.raises(ValueError, match="'ego', 'centralized', 'self', 'all'"):
         make_view("joint", core("discrete"))
@@ -298,6 +310,10 @@ def test_views_without_an_opponent_reject_one():
         make_view("all", core("discrete"), ego=1)
     with pytest.raises(ValueError, match="CentralizedView"):
         EgoView(core("discrete"), opponent="centralized")
+    with pytest.raises(ValueError, match=r"use make_view\('self', env\)"):
+        make_view("ego", core("discrete"), opponent="self")
+    with pytest.raises(TypeError, match="'end_on_ego_done' for the 'self' view"):
+        make_view("self", core("discrete"), end_on_ego_done=True)
 
 
 def test_unknown_opponent_names_the_valid_ones():

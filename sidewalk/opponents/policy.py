@@ -273,15 +273,11 @@ class PolicyOpponent(Opponent):
         from torchrl.envs import RewardSum, TransformedEnv
 
         from sidewalk.algos import ALGORITHMS
-        from sidewalk.views import CentralizedView, EgoView, SelfPlayView
+        from sidewalk.views import view_for_opponent
 
         core = _env_class(partner.domain)(1, device=env.device, seed=0, params=partner.env_params)
-        if partner.opponent == "self":
-            view = SelfPlayView(core)
-        elif partner.opponent == "centralized":
-            view = CentralizedView(core)
-        else:
-            view = EgoView(core, opponent="random", ego=partner.ego)
+        # The networks need only the view's specs: a random opponent stands in for whom an ego learner trained against.
+        view = view_for_opponent(core, partner.opponent if partner.plays_every_agent else "random", partner.ego or 0)
         algo = ALGORITHMS[partner.algo_name](partner.algo_config, TransformedEnv(view, RewardSum()), device=env.device)
         algo.load_policy_state_dict(partner.state)
         policy = algo.collection_policy() if sample else algo.evaluation_policy()
