@@ -140,7 +140,8 @@ def find_runs(paths: Sequence[str | Path]) -> list[Path]:
     ``checkpoint.pt``) is one; a folder holding run folders (a sweep) stands for those, in sorted order. Raises
     ``CrossplayError`` naming a path that is missing, a run folder without a policy (a run that failed or has not
     reached its first checkpoint) or a folder with no run."""
-    from sidewalk.report.runs import POLICY_FILES, find_run_folders, policy_file
+    from sidewalk.report.runs import POLICY_FILES, find_run_folders
+    from sidewalk.run_folder import policy_file
 
     found: list[Path] = []
     for path in map(Path, paths):

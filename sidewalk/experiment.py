@@ -43,7 +43,6 @@ from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 from tqdm import tqdm
 
 from sidewalk._torchrl import collector_state, restore_collector_state
-from sidewalk.algos import ALGORITHMS
 from sidewalk.algos.base import Algorithm
 from sidewalk.config import Experiment
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
@@ -51,6 +50,7 @@ from sidewalk.evaluate import evaluate, train_metrics
 from sidewalk.loggers import make_logger
 from sidewalk.opponents.policy import policy_description
 from sidewalk.progress import Best, Progress
+from sidewalk.registry import LEARNERS as ALGORITHMS  # Trial's name for the learners
 from sidewalk.run_folder import (
     BEST_POLICY,
     METRICS,
@@ -384,9 +384,3 @@ class Trial:
         bar.set_postfix(postfix, refresh=False)
         bar.update(1)
 
-
-__all__ = [  # the stopping and state helpers live in their own modules; their names stay importable from here
-    "EVAL_SEED_OFFSET", "LearnerDiverged", "Parts", "Progress", "RunInterrupted", "StopSignals", "Trial",
-    "capture_env", "capture_rng", "collector_frames_per_batch", "make_eval_view", "make_logger", "make_view",
-    "package_versions", "restore_env", "restore_rng", "train_metrics",
-]

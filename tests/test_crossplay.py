@@ -18,7 +18,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.crossplay import (
     COLUMNS,
     CrossplayError,
@@ -30,9 +30,11 @@ from sidewalk.crossplay import (
 from sidewalk.envs import DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
 from sidewalk.experiment import EVAL_SEED_OFFSET, Trial
-from sidewalk.report import Settings, write_report
 from sidewalk.report.checkpoints import load_experiment, load_policy
 from sidewalk.report.crossplay import condition_table, read_crossplay
+from sidewalk.report.document import write_report
+from sidewalk.report.tables import Settings
+from sidewalk.schema import register_schemas
 from sidewalk.views import EgoView
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -11,9 +11,10 @@ from torchrl.envs import RewardSum, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 import sidewalk.evaluate as evaluation
-from sidewalk.algos import ALGORITHMS
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.experiment import make_view
+from sidewalk.registry import LEARNERS
+from sidewalk.schema import register_schemas
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 register_schemas()
@@ -23,7 +24,7 @@ def learner_and_view(*overrides: str, worlds: int = 64):
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         exp = validate(compose(config_name="config", overrides=["logger=none", *overrides]))
     torch.manual_seed(0)
-    algo = ALGORITHMS[exp.algo.name](exp.algo, TransformedEnv(make_view(exp, 8, 0), RewardSum()))
+    algo = LEARNERS[exp.algo.name](exp.algo, TransformedEnv(make_view(exp, 8, 0), RewardSum()))
     return algo.evaluation_policy(), make_view(exp, worlds, 7)
 
 

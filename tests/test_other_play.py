@@ -9,9 +9,10 @@ import torch
 from hydra import compose, initialize_config_dir
 from torchrl.envs.utils import check_env_specs
 
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.envs.layouts import GridLayout
+from sidewalk.schema import register_schemas
 from sidewalk.symmetry import mirror_action, mirror_observation
 from sidewalk.views import SelfPlayView
 

@@ -12,7 +12,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 from torchrl.envs.utils import check_env_specs
 
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
 from sidewalk.experiment import EVAL_SEED_OFFSET, Trial, make_view
@@ -25,6 +25,7 @@ from sidewalk.opponents.policy import (
     turn_observation,
 )
 from sidewalk.report.checkpoints import load_experiment, load_policy
+from sidewalk.schema import register_schemas
 from sidewalk.views import EgoView, SelfPlayView
 
 ROOT = Path(__file__).resolve().parents[1]
