@@ -29,10 +29,11 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from sidewalk import run_folder
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.hydra_callbacks import ERROR_FILE
 from sidewalk.opponents.policy import check_partner_of
 from sidewalk.paths import CONFIG_DIR
+from sidewalk.schema import register_schemas
 
 register_schemas()
 
@@ -85,7 +86,8 @@ def refuse(error: Exception, in_sweep: bool, error_file: Path) -> None:
 
 def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | None:
     """Run the trial and print its headline figures (and write its plots, outside a sweep)."""
-    from sidewalk.experiment import LearnerDiverged, RunInterrupted, Trial
+    from sidewalk.experiment import Trial
+    from sidewalk.stops import LearnerDiverged, RunInterrupted
 
     try:
         if experiment.replicas > 1:
@@ -135,7 +137,8 @@ def train_group(experiment, run_dir: Path, config: dict, in_sweep: bool) -> floa
 
 def write_plots(run_dir: Path) -> None:
     """The run's learning curves, final values and trajectories in ``run_dir/report/`` (``sidewalk.report``)."""
-    from sidewalk.report import Settings, write_report
+    from sidewalk.report.document import write_report
+    from sidewalk.report.tables import Settings
 
     try:
         result = write_report([run_dir], run_dir / "report", Settings(n_resamples=2000))

@@ -15,12 +15,14 @@ import pandas as pd
 import pytest
 from hydra import compose, initialize_config_dir
 
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.experiment import Trial
 from sidewalk.group import GroupTrial, replica_dir
-from sidewalk.report import Settings, write_report
+from sidewalk.report.document import write_report
 from sidewalk.report.runs import find_run_folders, load_run
+from sidewalk.report.tables import Settings
 from sidewalk.run_folder import GROUP_DIR, read_torch_file
+from sidewalk.schema import register_schemas
 
 ROOT = Path(__file__).resolve().parents[1]
 WALL_CLOCK = ["time_s", "frames_per_s"]

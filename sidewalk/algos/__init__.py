@@ -10,6 +10,8 @@ from collections.abc import Mapping
 from sidewalk.algos.base import AlgoConfig, Algorithm, MultiAgentAlgorithm, MultiAgentConfig
 from sidewalk.registry import LEARNERS
 
-ALGORITHMS: Mapping[str, type[Algorithm]] = LEARNERS  # name -> Algorithm class, each learner imported on first use
+# Only for sidewalk/group.py, sidewalk/bench/* and Trial's rewrite, which read it here until their owners move them
+# to sidewalk.registry.LEARNERS; then this line goes.
+ALGORITHMS: Mapping[str, type[Algorithm]] = LEARNERS
 
 __all__ = ["ALGORITHMS", "AlgoConfig", "Algorithm", "MultiAgentAlgorithm", "MultiAgentConfig"]
