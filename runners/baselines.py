@@ -54,7 +54,7 @@ def scenario_overrides(scenario: str, domain: str) -> list[str]:
 
 def evaluate_team(scenario: str, domain: str, team: str, noise: float, seed: int, episodes: int) -> dict:
     """The metrics of one team of scripted agents in ``episodes`` worlds of one scenario, seeded with ``seed``."""
-    from sidewalk.bench.common import compose_experiment
+    from sidewalk.compose import compose_experiment
     from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
     from sidewalk.evaluate import evaluate
     from sidewalk.opponents.team import ScriptedTeam

@@ -54,14 +54,14 @@ import time
 import torch
 
 SECTIONS = {
-    "env": "sidewalk.bench.envs",
+    "env": "sidewalk.bench.env_speed",
     "planning": "sidewalk.bench.planning",
-    "views": "sidewalk.bench.views",
+    "views": "sidewalk.bench.view_speed",
     "training": "sidewalk.bench.training",
     "learners": "sidewalk.bench.learners",
     "geometry": "sidewalk.bench.geometry",
     "budget": "sidewalk.bench.budget",
-    "reproduce": "sidewalk.bench.reproduce",
+    "reproduce": "sidewalk.bench.reproduce_wall_clock",
     "scenarios": "sidewalk.bench.scenarios",
     "multiagent": "sidewalk.bench.multiagent",
     "groups": "sidewalk.bench.groups",

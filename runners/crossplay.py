@@ -79,8 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     from sidewalk.crossplay import run_crossplay
-    from sidewalk.experiment import package_versions
-    from sidewalk.run_folder import atomic_write, git_revision
+    from sidewalk.run_folder import atomic_write, git_revision, package_versions
 
     torch.set_num_threads(args.threads)
     start = time.perf_counter()

@@ -29,10 +29,11 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from sidewalk import run_folder
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.hydra_callbacks import ERROR_FILE
 from sidewalk.opponents.policy import check_partner_of
 from sidewalk.paths import CONFIG_DIR
+from sidewalk.schema import register_schemas
 
 register_schemas()
 
@@ -119,7 +120,8 @@ def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | No
 
 def write_plots(run_dir: Path) -> None:
     """The run's learning curves, final values and trajectories in ``run_dir/report/`` (``sidewalk.report``)."""
-    from sidewalk.report import Settings, write_report
+    from sidewalk.report.document import write_report
+    from sidewalk.report.tables import Settings
 
     try:
         result = write_report([run_dir], run_dir / "report", Settings(n_resamples=2000))

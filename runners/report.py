@@ -21,7 +21,8 @@ import logging
 import sys
 import time
 
-from sidewalk.report import X_AXES, Settings, write_report
+from sidewalk.report.document import write_report
+from sidewalk.report.tables import X_AXES, Settings
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,13 +15,12 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from sidewalk._checks import check_choice, check_int, check_keys, check_range
-from sidewalk.algos import ALGORITHMS
 from sidewalk.algos.base import AlgoConfig
 from sidewalk.envs.grid import DiscreteSidewalkEnv
 from sidewalk.envs.unicycle import ContinuousSidewalkEnv
 from sidewalk.later_keys import NOMINAL_EVAL
-from sidewalk.registry import OPPONENTS
-from sidewalk.schema import (  # noqa: F401  # the schemas, where callers have long imported them
+from sidewalk.registry import LEARNERS, OPPONENTS
+from sidewalk.schema import (
     PROTOCOL_ENV_FIELDS,
     ContinuousEnvSchema,
     DiscreteEnvSchema,
@@ -32,9 +31,6 @@ from sidewalk.schema import (  # noqa: F401  # the schemas, where callers have l
     RewardSchema,
     draws_starts,
     env_params_of,
-    register_schemas,
-    room_side,
-    with_schema_defaults,
 )
 from sidewalk.views import MAX_JOINT_ACTIONS
 
@@ -125,7 +121,7 @@ def validate(cfg: DictConfig) -> Experiment:
     _check_run_settings(cfg)
     domain, opponent, algo_name = _check_pairing(cfg)
     check_choice("logger", cfg.logger.name, LOGGERS)
-    check_known_keys(cfg, ALGORITHMS[algo_name].Config)
+    check_known_keys(cfg, LEARNERS[algo_name].Config)
     # The noise means a random-action probability in the grid and a ±ε uniform noise in the continuous world.
     check_range("noise", cfg.noise, 0.0, 1.0 if domain == "discrete" else 10.0)
     env_params = env_params_of(cfg)
@@ -133,7 +129,7 @@ def validate(cfg: DictConfig) -> Experiment:
     n_agents = _check_world(cfg, domain, opponent, env_params)
     ego = cfg.opponent.ego
     check_int("opponent.ego", ego, 0, n_agents - 1)
-    algo_cls = ALGORITHMS[algo_name].Config
+    algo_cls = LEARNERS[algo_name].Config
     algo = OmegaConf.to_object(cfg.algo) if OmegaConf.get_type(cfg.algo) is algo_cls else algo_cls(**cfg.algo)
     logger = OmegaConf.to_object(cfg.logger) if OmegaConf.get_type(cfg.logger) is LoggerSchema else LoggerSchema(**cfg.logger)
     return Experiment(
@@ -188,8 +184,8 @@ def _check_pairing(cfg: DictConfig) -> tuple[str, str, str]:
         valid = [name for name, domains in opponents.items() if domain in domains]
         raise ValueError(f"opponent={opponent} does not play env={domain}; valid opponents there: {', '.join(valid)}")
     algo_name = cfg.algo.name
-    check_choice("algo", algo_name, ALGORITHMS)
-    learners = {name: ALGORITHMS[name] for name in ALGORITHMS}
+    check_choice("algo", algo_name, LEARNERS)
+    learners = {name: LEARNERS[name] for name in LEARNERS}
     if domain not in learners[algo_name].domains:
         valid = [name for name, cls in learners.items() if domain in cls.domains]
         raise ValueError(f"algo={algo_name} does not fit env={domain}; valid algos there: {', '.join(valid)}")

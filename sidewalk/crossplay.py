@@ -40,10 +40,10 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
+from sidewalk.evaluate import distinct_rows, evaluate, run_episodes
 from sidewalk.experiment import EVAL_SEED_OFFSET
 from sidewalk.opponents.base import ACTION_KEY, Opponent
 from sidewalk.opponents.policy import (
@@ -140,7 +140,8 @@ def find_runs(paths: Sequence[str | Path]) -> list[Path]:
     ``checkpoint.pt``) is one; a folder holding run folders (a sweep) stands for those, in sorted order. Raises
     ``CrossplayError`` naming a path that is missing, a run folder without a policy (a run that failed or has not
     reached its first checkpoint) or a folder with no run."""
-    from sidewalk.report.runs import POLICY_FILES, find_run_folders, policy_file
+    from sidewalk.report.runs import POLICY_FILES, find_run_folders
+    from sidewalk.run_folder import policy_file
 
     found: list[Path] = []
     for path in map(Path, paths):
@@ -347,25 +348,6 @@ def _n_agents(domain: str, world: Any) -> int:
     return _core_class(domain).layout_for(world).n_agents
 
 
-def distinct_rows(flat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(the first row of each distinct row of ``flat`` (B, D), the distinct row of every row), exactly.
-
-    Rows are told apart by one random projection (a sort of B numbers, where ``torch.unique(dim=0)`` sorts B rows
-    of D), checked to reproduce every row; a collision, that never happens in practice, falls back to the sort."""
-    if bool((flat == flat[:1]).all()):  # noise 0, deterministic players: every world plays the same episode
-        return torch.zeros(1, dtype=torch.long, device=flat.device), flat.new_zeros(flat.shape[0], dtype=torch.long)
-    values = flat.to(torch.float64)
-    weights = torch.rand(values.shape[1], dtype=torch.float64, generator=torch.Generator().manual_seed(0))
-    _, inverse = torch.unique(values @ weights.to(values.device), return_inverse=True)
-    first_of = torch.full((int(inverse.max()) + 1,), flat.shape[0], dtype=torch.long, device=flat.device)
-    first_of.scatter_reduce_(0, inverse, torch.arange(flat.shape[0], device=flat.device), reduce="amin")
-    if not torch.equal(flat[first_of][inverse], flat):
-        _, inverse = torch.unique(flat, dim=0, return_inverse=True)
-        first_of = torch.full((int(inverse.max()) + 1,), flat.shape[0], dtype=torch.long, device=flat.device)
-        first_of.scatter_reduce_(0, inverse, torch.arange(flat.shape[0], device=flat.device), reduce="amin")
-    return first_of, inverse
-
-
 class DistinctPlayer(Opponent):
     """A learned player (a greedy ``PolicyOpponent``) run once per distinct observation of the worlds, as
     ``sidewalk.evaluate.act_on_distinct`` runs a policy: its actions are a function of every agent's observation in
@@ -490,26 +472,20 @@ class Arena:
     def evaluate(self, row: Player, column: Column) -> dict[str, float]:
         """Metrics (``sidewalk.evaluate``'s keys, the row's agent as ego) of ``row`` with ``column`` playing every
         other agent."""
-        from sidewalk.evaluate import evaluate
-        from sidewalk.opponents.base import make_opponent
-        from sidewalk.views import EgoView
+        from sidewalk.views import view_for_opponent
 
         ego = row.agent
-        core = self.core(ego)
-        if column.player is None:
-            others = tuple(agent for agent in range(core.n_agents) if agent != ego)
-            opponent = make_opponent(column.opponent or column.name, core, controlled=others, ego=ego,
-                                     **column.params)
+        if column.player is None:  # a scripted partner: a registered opponent's name, with its settings
+            partner = column.opponent or column.name
         else:
-            opponent = self._player(column.player, ego, as_row=False)
-        view = EgoView(core, opponent, ego=ego)
+            partner = self._player(column.player, ego, as_row=False)
+        view = view_for_opponent(self.core(ego), partner, ego, opponent_kwargs=column.params)
         policy = LearnedAgent(view, self._player(row, ego, as_row=True))
         return evaluate(view, policy, seed=self.world_seed, deterministic=False)
 
     def convention(self, row: Player) -> dict[str, Any]:
         """The convention (``convention``) of ``row``'s policy playing every agent of the two-agent sidewalk, on the
         matrix's worlds; "n/a" for other layouts."""
-        from sidewalk.evaluate import run_episodes
         from sidewalk.views import EgoView
 
         core = self.core(row.agent)

@@ -179,7 +179,7 @@ class _EpisodeTally:
             pair=~torch.eye(n_agents, dtype=torch.bool, device=device),
             record_trajectories=record_trajectories,
             trajectory=[start[:record_trajectories].cpu().numpy()] if record_trajectories else [],
-            episode_class=torch.unique(start.flatten(1), dim=0, return_inverse=True)[1],
+            episode_class=distinct_rows(start.flatten(1))[1],
         )
 
     def add_step(self, step: int, world: TensorDictBase, done: torch.Tensor) -> None:
@@ -202,7 +202,7 @@ class _EpisodeTally:
         self.previous = now
         # A world's class: its class so far and where its agents are now (a finished world's trajectory is over).
         key = torch.cat([self.episode_class.unsqueeze(-1).to(now.dtype), now.flatten(1) * live], dim=-1)
-        self.episode_class = torch.unique(key, dim=0, return_inverse=True)[1]
+        self.episode_class = distinct_rows(key)[1]
         ending = running & done
         if bool(ending.any()):
             self._add_deadlocks(step, now, ending, info["timed_out"])
@@ -285,7 +285,7 @@ def act_on_distinct(policy: TensorDictModuleBase, td: TensorDictBase, running: t
         rows = torch.zeros(1, dtype=torch.long, device=running.device)
     inputs = td.select(*in_keys)[rows]
     flat = torch.cat([inputs.get(key).reshape(rows.numel(), -1).to(torch.float64) for key in in_keys], dim=-1)
-    first_of, inverse = _distinct_rows(flat)
+    first_of, inverse = distinct_rows(flat)
     outputs = policy(inputs[first_of])
     # Every world gets the output of its distinct row; finished worlds that of the first running world.
     of_world = torch.zeros(td.batch_size[0], dtype=torch.long, device=running.device)
@@ -295,8 +295,12 @@ def act_on_distinct(policy: TensorDictModuleBase, td: TensorDictBase, running: t
     return td
 
 
-def _distinct_rows(flat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(the first row of each distinct row, the distinct row of every row)."""
+def distinct_rows(flat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(the first row of each distinct row of ``flat`` (B, D), the distinct row of every row), exactly: the distinct
+    rows in ``torch.unique(dim=0)``'s order, and ``inverse.max() + 1`` of them. Evaluation counts its distinct
+    episodes and inputs with it, cross-play its players' distinct observations (``sidewalk.crossplay``)."""
+    if bool((flat == flat[:1]).all()):  # noise 0, deterministic players: every world plays the same episode
+        return torch.zeros(1, dtype=torch.long, device=flat.device), flat.new_zeros(flat.shape[0], dtype=torch.long)
     distinct, inverse = torch.unique(flat, dim=0, return_inverse=True)
     first_of = torch.full((distinct.shape[0],), flat.shape[0], dtype=torch.long, device=flat.device)
     first_of.scatter_reduce_(0, inverse, torch.arange(flat.shape[0], device=flat.device), reduce="amin")

@@ -46,15 +46,14 @@ from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 from tqdm import tqdm
 
 from sidewalk._torchrl import collector_state, restore_collector_state
-from sidewalk.algos import ALGORITHMS
 from sidewalk.algos.replicas import ReplicaSet
 from sidewalk.config import Experiment
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate, train_metrics
 from sidewalk.loggers import make_logger
-from sidewalk.opponents.base import make_opponent
 from sidewalk.opponents.policy import policy_description
 from sidewalk.progress import Progress
+from sidewalk.registry import LEARNERS
 from sidewalk.run_folder import (
     BEST_POLICY,
     CONFIG,
@@ -77,7 +76,7 @@ from sidewalk.run_folder import (
 )
 from sidewalk.snapshot import capture_env, capture_rng, restore_env, restore_rng
 from sidewalk.stops import LearnerDiverged, RunInterrupted, StopSignals
-from sidewalk.views import CentralizedView, EgoView, SelfPlayView
+from sidewalk.views import view_for_opponent
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds draw from a stream of their own, the same at every evaluation
 # The absolute metric (Colas et al. 2018, marl-eval): the best evaluation's policy played on ten times the episodes,
@@ -89,21 +88,15 @@ WALL_CLOCK_COLUMNS = ("time_s", "frames_per_s")
 
 def make_view(experiment: Experiment, num_envs: int, seed: int, env_params: Any = None) -> EnvBase:
     """The env a learner trains or is evaluated on: the core env of ``num_envs`` worlds (``env_params``, by default
-    the training worlds') seen through the experiment's view (ego against a scripted opponent or a learned partner,
-    centralized, or self-play)."""
+    the training worlds') seen through the experiment's view (``sidewalk.views.view_for_opponent``: ego against a
+    scripted opponent or a learned partner, centralized, or self-play)."""
     core_cls = DiscreteSidewalkEnv if experiment.domain == "discrete" else ContinuousSidewalkEnv
     params = experiment.env_params if env_params is None else env_params
     core = core_cls(num_envs, device=experiment.device, seed=seed, params=params)
-    if experiment.opponent == "centralized":
-        return CentralizedView(core, shield=experiment.shield)
-    if experiment.opponent == "self":
-        return SelfPlayView(core, shield=experiment.shield, other_play=experiment.other_play, legacy_keys=False)
-    others = tuple(agent for agent in range(core.n_agents) if agent != experiment.ego)
-    opponent = make_opponent(experiment.opponent, core, controlled=others, ego=experiment.ego,
-                             **experiment.opponent_params)
-    return EgoView(
-        core, opponent=opponent, ego=experiment.ego, end_on_ego_done=experiment.end_on_ego_done,
-        shield=experiment.shield,
+    return view_for_opponent(
+        core, experiment.opponent, experiment.ego, shield=experiment.shield,
+        end_on_ego_done=experiment.end_on_ego_done, opponent_kwargs=experiment.opponent_params,
+        other_play=experiment.other_play,
     )
 
 
@@ -249,7 +242,7 @@ class Trial:
             run_dir = self.run_dir if count == 1 else replica_dir(self.run_dir, seed)
             config = (self.config if count == 1 else replica_config(self.config, seed)) if self.config else {}
             runs.append(SeedRun(alone, run_dir, config, make_eval_view(alone), None, Progress()))
-        learners = ReplicaSet(ALGORITHMS[exp.algo.name], exp.algo, train_env, exp.device, self.seeds)
+        learners = ReplicaSet(LEARNERS[exp.algo.name], exp.algo, train_env, exp.device, self.seeds)
         frames_per_batch = collector_frames_per_batch(exp)
         collector = Collector(
             train_env,
@@ -522,10 +515,3 @@ class Trial:
 
 def _as_list(value: Any, count: int) -> list[Any]:
     return value if count > 1 else [value]
-
-
-__all__ = [  # the stopping and state helpers live in their own modules; their names stay importable from here
-    "EVAL_SEED_OFFSET", "LearnerDiverged", "Parts", "Progress", "RunInterrupted", "StopSignals", "Trial",
-    "capture_env", "capture_rng", "collector_frames_per_batch", "make_eval_view", "make_logger", "make_view",
-    "package_versions", "restore_env", "restore_rng", "train_metrics",
-]

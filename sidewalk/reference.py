@@ -13,6 +13,10 @@ job computes, and the reference must be re-made (or a note in ``reference.json``
                                                             # reference's commit
     python -m sidewalk.reference collect SWEEP_ROOT results/reference/runs   # the runs' small files, for the report
     python -m sidewalk.reference trees ../ref ../ref2      # do two commits compute every job alike, in a group too?
+    python -m sidewalk.reference check --root DIR           # the reference folders under DIR, not the clone's
+
+``check`` and ``trees`` read the reference folders under a root: ``--root DIR``, else the clone's ``results/reference``
+found in the current folder or the nearest folder above it (an installed package has no reference of its own).
 
 ``collect`` copies what ``runners/report.py`` reads of each finished run (``config.yaml``, ``summary.json``,
 ``history.jsonl``, the metrics as ``metrics.csv.xz`` without the learners' diagnostics) and each sweep's
@@ -34,10 +38,8 @@ from typing import Any
 
 import pandas as pd
 
-from sidewalk.paths import PACKAGE_DIR
-
-REFERENCE_ROOT = PACKAGE_DIR.parent / "results" / "reference"
-FOLDERS = ("", "safe")  # the reference folders with a probe, under REFERENCE_ROOT
+REFERENCE_DIR = Path("results") / "reference"  # where a clone keeps its reference folders, from its top
+FOLDERS = ("", "safe")  # the reference folders with a probe, under the reference root
 META = "reference.json"
 PROBE = "probe.csv"
 STATUS = "freshness.md"
@@ -57,7 +59,7 @@ KEPT_TRAIN = ("success", "collision", "return", "cost", "episodes", "shield", "l
 def probe_overrides(job_overrides: Sequence[str]) -> list[str]:
     """A job's overrides made into its probe's: the job's config, seed 0 alone, a few iterations (past an off-policy
     learner's ``learning_starts``), one evaluation at the end."""
-    from sidewalk.reproduce import compose
+    from sidewalk.compose import compose
 
     cfg = compose([*job_overrides, *PROBE_OVERRIDES])
     starts = int(cfg.algo.get("learning_starts", 0) or 0)
@@ -68,11 +70,10 @@ def probe_overrides(job_overrides: Sequence[str]) -> list[str]:
 
 def probe_job(job_overrides: Sequence[str], work_dir: Path) -> pd.DataFrame:
     """The probe of one job: its metrics, one row per iteration, wall clock dropped."""
-    from sidewalk.config import validate
+    from sidewalk.compose import compose_experiment
     from sidewalk.experiment import Trial
-    from sidewalk.reproduce import compose
 
-    experiment = validate(compose(probe_overrides(job_overrides)))
+    experiment = compose_experiment(probe_overrides(job_overrides))
     Trial(experiment, work_dir).run(progress=False)
     metrics = pd.read_csv(work_dir / "metrics.csv")
     return metrics.drop(columns=[column for column in WALL_CLOCK if column in metrics.columns])
@@ -183,15 +184,18 @@ class Reference:
 
     folder: Path
     meta: dict[str, Any]
+    root: Path | None = None  # the reference root it lies under: its name starts at the root's results/
 
     @classmethod
-    def load(cls, folder: Path) -> Reference:
-        return cls(Path(folder), json.loads((Path(folder) / META).read_text()))
+    def load(cls, folder: Path, root: Path | None = None) -> Reference:
+        return cls(Path(folder), json.loads((Path(folder) / META).read_text()), root)
 
     @property
     def name(self) -> str:
-        return str(self.folder.relative_to(REFERENCE_ROOT.parent.parent)) if self.folder.is_relative_to(
-            REFERENCE_ROOT.parent.parent) else str(self.folder)
+        """The folder as the clone names it (``results/reference/safe``) where it lies under its root, else as given."""
+        top = None if self.root is None else self.root.parent.parent
+        return str(self.folder.relative_to(top)) if top is not None and self.folder.is_relative_to(top) else str(
+            self.folder)
 
     @property
     def jobs(self) -> dict[str, list[str]]:
@@ -229,9 +233,9 @@ def _has_runs(runs: Path, job: str, overrides: Sequence[str]) -> bool:
         return any((runs / job).rglob("summary.json"))
     from omegaconf import OmegaConf
 
+    from sidewalk.compose import compose
     from sidewalk.report.conditions import condition_config
     from sidewalk.report.runs import CONFIG, flatten
-    from sidewalk.reproduce import compose
 
     def condition(cfg: Any) -> dict[str, Any]:
         return condition_config(flatten(OmegaConf.to_container(cfg, resolve=True)))
@@ -242,8 +246,29 @@ def _has_runs(runs: Path, job: str, overrides: Sequence[str]) -> bool:
                for summary in (domain.rglob("summary.json") if domain.is_dir() else ()))
 
 
-def references(names: Sequence[str] = FOLDERS) -> list[Reference]:
-    return [Reference.load(REFERENCE_ROOT / name) for name in names]
+def find_reference_root(start: Path | None = None) -> Path:
+    """The clone's ``results/reference``: in ``start`` (default: the current folder) or the nearest folder above it."""
+    start = (Path.cwd() if start is None else Path(start)).resolve()
+    for folder in (start, *start.parents):
+        if (folder / REFERENCE_DIR).is_dir():
+            return folder / REFERENCE_DIR
+    raise FileNotFoundError(f"no {REFERENCE_DIR} in {start} or any folder above it: run from a clone of the "
+                            f"repository, or give the reference root with --root DIR")
+
+
+def reference_root(given: Path | None = None) -> Path:
+    """``given`` where the user gave a root (it must be a folder), else ``find_reference_root()``."""
+    if given is None:
+        return find_reference_root()
+    if not Path(given).is_dir():
+        raise FileNotFoundError(f"--root {given}: not a folder; give the folder that holds the reference folders "
+                                f"(a clone's {REFERENCE_DIR})")
+    return Path(given).resolve()
+
+
+def references(root: Path, names: Sequence[str] = FOLDERS) -> list[Reference]:
+    """The reference folders ``names`` under ``root`` (``''`` is the root itself)."""
+    return [Reference.load(root / name, root) for name in names]
 
 
 def status_table(checked: list[tuple[Reference, list[Comparison]]]) -> str:
@@ -297,10 +322,11 @@ def collect(sweep_root: Path, destination: Path, policy_seeds: Sequence[int] = (
 # ---- the command ----------------------------------------------------------------------------------------------------
 
 
-def _compare_trees(first: Path, second: Path, folders: Sequence[str], replicas: int) -> int:
-    """Every job of ``folders`` probed by both checkouts as a group of ``replicas``; exit 1 where they differ."""
+def _compare_trees(first: Path, second: Path, root: Path, folders: Sequence[str], replicas: int) -> int:
+    """Every job of ``folders`` under ``root`` probed by both checkouts as a group of ``replicas``; exit 1 where they
+    differ."""
     differ = 0
-    for reference in references(folders):
+    for reference in references(root, folders):
         made = [probe(reference.jobs, tree=tree, replicas=replicas) for tree in (first, second)]
         for result in compare(*made):
             differ += not result.same
@@ -314,8 +340,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                      epilog="\n".join(__doc__.splitlines()[2:]))
     commands = parser.add_subparsers(dest="command", required=True)
     check = commands.add_parser("check", help="today's probe against every reference folder's recorded one")
-    check.add_argument("folders", nargs="*", default=list(FOLDERS), help="under results/reference/ ('' is itself)")
-    check.add_argument("--write-status", action="store_true", help=f"rewrite results/reference/{STATUS}")
+    check.add_argument("folders", nargs="*", default=list(FOLDERS), help="under the reference root ('' is itself)")
+    check.add_argument("--write-status", action="store_true", help=f"rewrite the reference root's {STATUS}")
     record = commands.add_parser("probe", help="record a reference folder's probe (at the reference's commit)")
     record.add_argument("folder")
     record.add_argument("--tree", help="a checkout of the reference's commit whose code makes the probe (default: "
@@ -324,8 +350,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                                               "--replicas seeds: what a group's arithmetic changes too)")
     trees.add_argument("first")
     trees.add_argument("second")
-    trees.add_argument("--folders", nargs="*", default=list(FOLDERS), help="under results/reference/")
+    trees.add_argument("--folders", nargs="*", default=list(FOLDERS), help="under the reference root")
     trees.add_argument("--replicas", type=int, default=2)
+    for command in (check, trees):
+        command.add_argument("--root", type=Path, help=f"the reference root (default: {REFERENCE_DIR} in the current "
+                                                       "folder or the nearest folder above it)")
     gather = commands.add_parser("collect", help="copy a sweep's small files for the report")
     gather.add_argument("sweep_root")
     gather.add_argument("destination")
@@ -346,14 +375,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         copied = collect(Path(args.sweep_root), Path(args.destination), args.policies_of_seed)
         print(f"collected {copied} run(s) into {args.destination}", file=sys.stderr)
         return 0
+    try:
+        root = reference_root(args.root)
+    except FileNotFoundError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     if args.command == "trees":
-        return _compare_trees(Path(args.first).resolve(), Path(args.second).resolve(), args.folders, args.replicas)
-    checked = [(reference, reference.check()) for reference in references(args.folders)]
+        return _compare_trees(Path(args.first).resolve(), Path(args.second).resolve(), root, args.folders,
+                              args.replicas)
+    checked = [(reference, reference.check()) for reference in references(root, args.folders)]
     for reference, results in checked:
         for result in results:
             print(f"{reference.name}/ {result.job}: {'same' if result.same else 'CHANGED'} ({result.detail})")
     if args.write_status:
-        (REFERENCE_ROOT / STATUS).write_text(status_table(checked))
+        (root / STATUS).write_text(status_table(checked))
     changed = [(reference.name, result.job) for reference, results in checked for result in results if not result.same]
     if changed:
         print(f"error: today's code no longer makes {len(changed)} reference job(s): "

@@ -36,6 +36,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from sidewalk.compose import compose
 from sidewalk.paths import CONFIG_DIR, RUNNERS_DIR
 from sidewalk.run_folder import CHECKPOINT, GROUP_DIR, PREVIOUS_CHECKPOINT, SUMMARY
 
@@ -64,20 +65,6 @@ class Job:
     def point(self) -> str:
         """The sweep point, e.g. ``noise=0.5``."""
         return self.folder.split("/", 1)[1].split("_", 1)[1]
-
-
-def compose(overrides: Sequence[str], conf_dir: Path | None = None, hydra_config: bool = False):
-    """The config ``runners/main.py`` would compose from ``overrides`` (from ``conf_dir``, default this checkout's)."""
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-
-    from sidewalk.config import register_schemas
-
-    register_schemas()
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(conf_dir or CONFIG_DIR), version_base="1.3"):
-        return hydra_compose("config", overrides=list(overrides), return_hydra_config=hydra_config)
 
 
 def sweep_points(preset: str, overrides: Sequence[str] = (), conf_dir: Path | None = None) -> list[list[str]]:

@@ -16,11 +16,11 @@ from typing import Any, Optional
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
-from sidewalk.algos import ALGORITHMS
 from sidewalk.envs.grid import DiscreteParams
 from sidewalk.envs.rewards import RewardParams
 from sidewalk.envs.unicycle import ContinuousParams
 from sidewalk.later_keys import LATER_ENV_KEYS, NOMINAL_EVAL, later_algo_keys, later_opponent_keys
+from sidewalk.registry import LEARNERS
 
 # Set by the top level (`noise`) and the reward group, so they are not env-group fields.
 ENV_FIELDS_SET_ELSEWHERE = ("noise", "rewards")
@@ -147,7 +147,7 @@ def with_schema_defaults(cfg: DictConfig) -> DictConfig:
     cfg.env = OmegaConf.merge({key.split(".", 1)[1]: value for key, value in env_keys.items()}, cfg.env)
     cfg.opponent.params = OmegaConf.merge(later_opponent_keys(cfg.opponent.name), cfg.opponent.params)
     cfg.algo = OmegaConf.merge(
-        OmegaConf.structured(ALGORITHMS[cfg.algo.name].Config), later_algo_keys(cfg.algo.name), cfg.algo
+        OmegaConf.structured(LEARNERS[cfg.algo.name].Config), later_algo_keys(cfg.algo.name), cfg.algo
     )
     cfg.logger = OmegaConf.merge(OmegaConf.structured(LoggerSchema), cfg.logger)
     return cfg
@@ -261,8 +261,8 @@ def register_schemas() -> None:
     store.store(group="schema/opponent", name="opponent", node=OpponentSchema)
     store.store(group="schema/logger", name="logger", node=LoggerSchema)
     store.store(group="schema/eval", name="eval", node=EvalSchema)
-    for name in ALGORITHMS:
-        store.store(group="schema/algo", name=name, node=ALGORITHMS[name].Config)
+    for name in LEARNERS:
+        store.store(group="schema/algo", name=name, node=LEARNERS[name].Config)
 
 
 def env_params_of(cfg: DictConfig) -> DiscreteParams | ContinuousParams:

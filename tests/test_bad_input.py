@@ -334,7 +334,8 @@ def test_a_hydra_config_that_gives_no_room_gets_one_that_holds_its_agents(overri
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from sidewalk.config import register_schemas, validate
+    from sidewalk.config import validate
+    from sidewalk.schema import register_schemas
 
     register_schemas()
     with initialize_config_dir(version_base="1.3", config_dir=str(Path(__file__).resolve().parents[1] / "conf")):

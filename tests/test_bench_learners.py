@@ -11,7 +11,7 @@ import torch
 pytest.importorskip("stable_baselines3")
 
 from sidewalk.bench import learners
-from sidewalk.bench.common import compose_experiment
+from sidewalk.compose import compose_experiment
 from sidewalk.experiment import collector_frames_per_batch
 
 HAS_SB3_CONTRIB = importlib.util.find_spec("sb3_contrib") is not None

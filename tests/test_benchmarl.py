@@ -28,7 +28,7 @@ PRESET = {task: f"selfplay_{task.name.lower().replace('sidewalk_', '')}"
 
 @pytest.mark.parametrize("task", list(SidewalkTask), ids=lambda task: task.name.lower())
 def test_each_task_is_the_worlds_of_its_self_play_preset(task):
-    from sidewalk.reproduce import compose
+    from sidewalk.compose import compose
 
     cfg = compose([f"+experiment={PRESET[task]}"])
     config = task.get_from_yaml().config

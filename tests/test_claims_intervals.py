@@ -12,8 +12,9 @@ from hydra import compose, initialize_config_dir
 # The claims' synthetic run folders, as tests/test_report.py writes them.
 from test_report import CONF, agents, write_run
 
-from sidewalk.report import find_run_folders, group_conditions, load_run
 from sidewalk.report.claims import BOOTSTRAP, TIE, check_claims, claims_section
+from sidewalk.report.conditions import group_conditions
+from sidewalk.report.runs import find_run_folders, load_run
 from sidewalk.report.tables import NumberLog
 from sidewalk.stats import difference_interval
 

@@ -13,8 +13,9 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from sidewalk.algos import ALGORITHMS
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
+from sidewalk.registry import LEARNERS
+from sidewalk.schema import register_schemas
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -41,11 +42,11 @@ def test_valid_configs_compose_and_validate(overrides):
     assert experiment.algo.name == composed(*overrides).algo.name
 
 
-@pytest.mark.parametrize("name", list(ALGORITHMS))
+@pytest.mark.parametrize("name", list(LEARNERS))
 def test_algo_yaml_mirrors_its_schema(name):
     # Composed on vectors: a setting that differs on images (${sidewalk.on_images:...}) takes its vector value.
     yaml = OmegaConf.to_container(composed(f"algo={name}", "env=discrete", "env.observation=vector").algo, resolve=True)
-    defaults = dataclasses.asdict(ALGORITHMS[name].Config())
+    defaults = dataclasses.asdict(LEARNERS[name].Config())
     assert yaml == defaults
 
 

@@ -18,7 +18,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.crossplay import (
     COLUMNS,
     CrossplayError,
@@ -30,9 +30,11 @@ from sidewalk.crossplay import (
 from sidewalk.envs import DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
 from sidewalk.experiment import EVAL_SEED_OFFSET, Trial
-from sidewalk.report import Settings, write_report
 from sidewalk.report.checkpoints import load_experiment, load_policy
 from sidewalk.report.crossplay import condition_table, read_crossplay
+from sidewalk.report.document import write_report
+from sidewalk.report.tables import Settings
+from sidewalk.schema import register_schemas
 from sidewalk.views import EgoView
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -235,19 +237,6 @@ def test_a_partner_that_cannot_play_the_other_role_leaves_its_cell_empty_with_th
     played, empty = frame.iloc[0], frame.iloc[1]
     assert played["skipped"] == "" and played["episodes"] == 4
     assert "cannot play agent 1" in empty["skipped"] and pd.isna(empty["success"]) and pd.isna(empty["episodes"])
-
-
-def test_distinct_rows_are_exact():
-    import torch
-
-    from sidewalk.crossplay import distinct_rows
-
-    flat = torch.randint(0, 3, (64, 5), dtype=torch.uint8, generator=torch.Generator().manual_seed(1))
-    for rows in (flat, flat[:1].expand(8, 5)):
-        first_of, inverse = distinct_rows(rows)
-        assert torch.equal(rows[first_of][inverse], rows)
-        assert len(first_of) == len(torch.unique(rows, dim=0))
-        assert all(int(first) == int((inverse == group).nonzero()[0]) for group, first in enumerate(first_of))
 
 
 def _walk(lateral_0: float, lateral_1: float, steps: int = 15, length: float = 14.0) -> np.ndarray:

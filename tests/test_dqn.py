@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from sidewalk.algos.dqn import DQN, TRANSITION_KEYS, loss_module_step
-from sidewalk.bench.common import compose_experiment
+from sidewalk.compose import compose_experiment
 from sidewalk.experiment import make_view
 
 

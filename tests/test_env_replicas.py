@@ -84,8 +84,8 @@ CASES = {
     "ego-prm-seeded-door": lambda n, seed: EgoView(
         plane(n, seed, layout="door", n_agents=3), "prm", opponent_kwargs={"roadmap_seed": 4}
     ),
-    "self-other-play-grid": lambda n, seed: SelfPlayView(grid(n, seed), other_play=True, legacy_keys=False),
-    "self-other-play-plane-shield": lambda n, seed: SelfPlayView(plane(n, seed), other_play=True, shield=True, legacy_keys=False),
+    "self-other-play-grid": lambda n, seed: SelfPlayView(grid(n, seed), other_play=True),
+    "self-other-play-plane-shield": lambda n, seed: SelfPlayView(plane(n, seed), other_play=True, shield=True),
     "centralized-grid-shield": lambda n, seed: CentralizedView(grid(n, seed), shield=True),
     "centralized-plane": lambda n, seed: CentralizedView(plane(n, seed)),
 }

@@ -11,9 +11,10 @@ from torchrl.envs import RewardSum, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 import sidewalk.evaluate as evaluation
-from sidewalk.algos import ALGORITHMS
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.experiment import make_view
+from sidewalk.registry import LEARNERS
+from sidewalk.schema import register_schemas
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 register_schemas()
@@ -23,7 +24,7 @@ def learner_and_view(*overrides: str, worlds: int = 64):
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         exp = validate(compose(config_name="config", overrides=["logger=none", *overrides]))
     torch.manual_seed(0)
-    algo = ALGORITHMS[exp.algo.name](exp.algo, TransformedEnv(make_view(exp, 8, 0), RewardSum()))
+    algo = LEARNERS[exp.algo.name](exp.algo, TransformedEnv(make_view(exp, 8, 0), RewardSum()))
     return algo.evaluation_policy(), make_view(exp, worlds, 7)
 
 
@@ -53,6 +54,15 @@ def test_policy_runs_once_per_distinct_observation_of_the_running_worlds():
     assert counting.inputs == [3]  # worlds 0-4 share one image; 5 and 6 differ; 7 has finished
     assert torch.equal(out.get("action")[:7], plain.get("action")[:7])
     assert torch.equal(out.get("action")[7], out.get("action")[0])  # a finished world gets a valid action
+
+
+def test_distinct_rows_are_exact():
+    flat = torch.randint(0, 3, (64, 5), dtype=torch.uint8, generator=torch.Generator().manual_seed(1))
+    for rows in (flat, flat[:1].expand(8, 5)):
+        first_of, inverse = evaluation.distinct_rows(rows)
+        assert torch.equal(rows[first_of][inverse], rows)
+        assert len(first_of) == len(torch.unique(rows, dim=0))
+        assert all(int(first) == int((inverse == group).nonzero()[0]) for group, first in enumerate(first_of))
 
 
 @pytest.mark.parametrize(

@@ -14,7 +14,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.envs.grid import ACTIONS
 from sidewalk.envs.layouts import grid_layout, plane_layout
@@ -25,6 +25,7 @@ from sidewalk.envs.layouts.jitter import (
     largest_plane_jitter,
 )
 from sidewalk.opponents.dijkstra import DijkstraOpponent
+from sidewalk.schema import register_schemas
 
 ROOT = Path(__file__).resolve().parents[1]
 RIGHT, LEFT = ACTIONS.index("RIGHT"), ACTIONS.index("LEFT")
@@ -234,7 +235,8 @@ def test_random_tie_breaks_choose_only_among_the_cheapest_moves_and_repeat_for_a
 def test_the_report_writes_the_runs_in_marl_eval_s_layout(tmp_path):
     """marl-eval (id-marl-eval 0.0.4) pins pandas 1.4.4, which cannot sit beside our pins, so its loader cannot run
     here: the file is checked against what its ``data_process_pipeline`` and ``DiagnoseData`` read."""
-    from sidewalk.report import Settings, write_report
+    from sidewalk.report.document import write_report
+    from sidewalk.report.tables import Settings
 
     runs = tmp_path / "sweep"
     for seed in (0, 1):

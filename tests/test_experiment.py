@@ -175,8 +175,10 @@ def test_a_diverged_learner_stops_the_run_and_keeps_the_last_good_checkpoint(tmp
     from omegaconf import OmegaConf
 
     from sidewalk.algos.dqn import DQN
-    from sidewalk.config import register_schemas, validate
-    from sidewalk.experiment import LearnerDiverged, Trial
+    from sidewalk.config import validate
+    from sidewalk.experiment import Trial
+    from sidewalk.schema import register_schemas
+    from sidewalk.stops import LearnerDiverged
 
     register_schemas()
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
@@ -237,7 +239,7 @@ def test_resume_reads_keys_added_since_the_folder_was_written_at_their_defaults(
     from omegaconf import OmegaConf
 
     from sidewalk import run_folder
-    from sidewalk.config import register_schemas
+    from sidewalk.schema import register_schemas
 
     register_schemas()
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
@@ -261,7 +263,7 @@ def test_a_dqn_folder_from_before_advantage_learning_reads_as_the_plain_dqn_it_r
     from omegaconf import OmegaConf
 
     from sidewalk import run_folder
-    from sidewalk.config import register_schemas
+    from sidewalk.schema import register_schemas
 
     register_schemas()
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):

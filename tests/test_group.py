@@ -20,13 +20,15 @@ from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
 from sidewalk.algos.replicas import replica_state
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.experiment import Trial, replica_dir
 from sidewalk.registry import LEARNERS
-from sidewalk.report import Settings, write_report
+from sidewalk.report.document import write_report
 from sidewalk.report.runs import find_run_folders, load_run
+from sidewalk.report.tables import Settings
 from sidewalk.run_folder import GROUP_DIR, read_torch_file
+from sidewalk.schema import register_schemas
 
 ROOT = Path(__file__).resolve().parents[1]
 WALL_CLOCK = ["time_s", "frames_per_s"]
@@ -105,7 +107,7 @@ def test_a_replica_updates_as_its_lone_learner(name):
     ends exactly where it did when another replica's batch is changed."""
     from sidewalk.views import make_view
 
-    cls = LEARNERS.get(name)
+    cls = LEARNERS[name]
     core_cls, settings = LEARNER_WORLDS[name]
     config = cls.Config(frames_per_batch=64, **settings)
     env = make_view("ego", core_cls(8, seed=0), opponent="random")

@@ -12,9 +12,10 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.evaluate import evaluate
 from sidewalk.experiment import EVAL_SEED_OFFSET, Trial, make_view
+from sidewalk.schema import register_schemas
 
 pytestmark = pytest.mark.slow
 CONF = Path(__file__).resolve().parents[1] / "conf"

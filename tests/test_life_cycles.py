@@ -36,14 +36,14 @@ def play(view: SelfPlayView, actions: list[list]) -> TensorDict:
 
 def crash_episode(observation: str = "image") -> TensorDict:
     """Agent 1 walks UP off the grid at step 4 (index 3); agent 0 walks RIGHT and arrives alone at step 14."""
-    view = SelfPlayView(DiscreteSidewalkEnv(1, seed=0, observation=observation), legacy_keys=False)
+    view = SelfPlayView(DiscreteSidewalkEnv(1, seed=0, observation=observation))
     return play(view, [[RIGHT, UP]] * 14)
 
 
 def later_arrival_episode() -> TensorDict:
     """Agent 1 steps UP out of the way and waits between rows 2 and 1; agent 0 arrives at step 14 (index 13); then
     agent 1 walks LEFT along row 1 and DOWN twice onto its goal, arriving at step 30 (index 29)."""
-    view = SelfPlayView(DiscreteSidewalkEnv(1, seed=0), legacy_keys=False)
+    view = SelfPlayView(DiscreteSidewalkEnv(1, seed=0))
     wait = [[RIGHT, UP]] + [[RIGHT, UP if step % 2 else DOWN] for step in range(1, 14)]
     return play(view, wait + [[RIGHT, LEFT]] * 14 + [[RIGHT, DOWN]] * 2)
 
@@ -127,7 +127,7 @@ def test_a_removed_agent_does_not_appear_in_the_others_grid_observations(observa
     crash = 3
     seen = td.get(("next", "agents", "observation"))[0, :, 0]  # agent 0's own view
     if observation == "image":
-        alone = SelfPlayView(DiscreteSidewalkEnv(1, seed=0), legacy_keys=False).core._agent_grey[0, 1]  # agent 1's grey in 0's image
+        alone = SelfPlayView(DiscreteSidewalkEnv(1, seed=0)).core._agent_grey[0, 1]  # agent 1's grey in 0's image
         assert (seen[crash - 1] == alone).any() and not (seen[crash:] == alone).any()
     else:
         other = seen.unflatten(-1, (2, len(VECTOR_FIELDS)))[:, 1]
@@ -137,7 +137,7 @@ def test_a_removed_agent_does_not_appear_in_the_others_grid_observations(observa
 
 
 def test_continuous_observations_flag_who_is_active_and_present_and_zero_a_removed_agent():
-    view = SelfPlayView(ContinuousSidewalkEnv(64, seed=0), legacy_keys=False)
+    view = SelfPlayView(ContinuousSidewalkEnv(64, seed=0))
     torch.manual_seed(0)
     rollout = view.rollout(60, break_when_any_done=False)
     observation = rollout.get(("next", "agents", "observation"))

@@ -16,11 +16,12 @@ from torchrl.envs import RewardSum, TransformedEnv
 
 from sidewalk.algos.ippo import IPPO, IPPOConfig
 from sidewalk.algos.mappo import MAPPO, MAPPOConfig
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.envs.grid import DiscreteParams
 from sidewalk.envs.unicycle import OBSERVATION_FIELDS
 from sidewalk.experiment import Trial
+from sidewalk.schema import register_schemas
 from sidewalk.views import SelfPlayView
 
 torch.set_num_threads(1)  # small networks on a 2-core machine: threads only contend
@@ -38,7 +39,7 @@ def view(domain: str, num_envs: int = 4, seed: int = 0) -> TransformedEnv:
         core = ContinuousSidewalkEnv(num_envs, seed=seed)
     else:
         core = DiscreteSidewalkEnv(num_envs, seed=seed, params=DiscreteParams(observation=domain))
-    return TransformedEnv(SelfPlayView(core, legacy_keys=False), RewardSum())
+    return TransformedEnv(SelfPlayView(core), RewardSum())
 
 
 def learner(name: str, domain: str, num_envs: int = 4, **config) -> tuple[IPPO, TransformedEnv]:

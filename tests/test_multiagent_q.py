@@ -11,15 +11,15 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs import RewardSum, TransformedEnv
 
-from sidewalk.algos import ALGORITHMS
 from sidewalk.algos.dqn import loss_module_step
 from sidewalk.algos.iql import ACTION_VALUE_KEY, CHOSEN_ACTION_VALUE_KEY
 from sidewalk.algos.qmix import STATE_KEY
 from sidewalk.envs import DiscreteSidewalkEnv
+from sidewalk.registry import LEARNERS
 from sidewalk.views import SelfPlayView
 
 ROOT = Path(__file__).resolve().parents[1]
-LEARNERS = ("iql", "vdn", "qmix")
+Q_LEARNERS = ("iql", "vdn", "qmix")
 OBS, ACTION, REWARD = ("agents", "observation"), ("agents", "action"), ("agents", "reward")
 MASK = ("agents", "info", "mask")
 GAMMA = 0.9
@@ -35,8 +35,8 @@ def one_thread():
 
 def make_learner(name: str, num_envs: int = 4, **overrides):
     torch.manual_seed(0)
-    env = TransformedEnv(SelfPlayView(DiscreteSidewalkEnv(num_envs, seed=0), legacy_keys=False), RewardSum())
-    cls = ALGORITHMS[name]
+    env = TransformedEnv(SelfPlayView(DiscreteSidewalkEnv(num_envs, seed=0)), RewardSum())
+    cls = LEARNERS[name]
     return cls(cls.Config(**overrides), env), env
 
 
@@ -146,7 +146,7 @@ def expected_targets(name: str, algo, td: TensorDict):
     return mixer(chosen, state), reward + GAMMA * (~terminated) * next_team
 
 
-@pytest.mark.parametrize("name", LEARNERS)
+@pytest.mark.parametrize("name", Q_LEARNERS)
 def test_td_target_on_a_hand_made_transition(name):
     algo, env = make_learner(name, gamma=GAMMA, loss_function="l2")
     td = hand_made_transitions(algo, env)
@@ -174,7 +174,7 @@ def test_iql_leaves_an_agents_steps_after_its_end_out_of_the_loss():
     torch.testing.assert_close(algo.loss(stored)["loss"], expected)
 
 
-@pytest.mark.parametrize("name", LEARNERS)
+@pytest.mark.parametrize("name", Q_LEARNERS)
 def test_loss_decreases_on_a_fixed_batch(name):
     algo, env = make_learner(name, lr=2e-3)
     batch = algo.transitions(random_batch(env, 8))  # 32 transitions
@@ -218,9 +218,9 @@ def test_qmix_advantage_learning_pays_the_mixed_gap_to_the_greedy_joint_action()
     torch.testing.assert_close(ours._advantage_learning_step(batch.clone()), loss_module_step(theirs, shifted))
 
 
-@pytest.mark.parametrize("name", LEARNERS)
+@pytest.mark.parametrize("name", Q_LEARNERS)
 def test_share_params_false_gives_agents_their_own_q(name):
-    observation = SelfPlayView(DiscreteSidewalkEnv(1, seed=0), legacy_keys=False).reset().get(OBS)[:, :1]  # agent 0's view
+    observation = SelfPlayView(DiscreteSidewalkEnv(1, seed=0)).reset().get(OBS)[:, :1]  # agent 0's view
     same_view = observation.expand(1, 2, *observation.shape[2:])  # both agents see it
     for share in (True, False):
         algo, _ = make_learner(name, share_params=share)
@@ -234,7 +234,7 @@ def test_share_params_false_gives_agents_their_own_q(name):
 @pytest.mark.parametrize("name", ["vdn", "qmix"])
 def test_mixers_refuse_double_dqn(name):
     with pytest.raises(ValueError, match="double_dqn"):
-        ALGORITHMS[name].Config(double_dqn=True)
+        LEARNERS[name].Config(double_dqn=True)
 
 
 # ---- a self-play run resumes exactly ---------------------------------------------------------------------------
@@ -250,8 +250,9 @@ def trial(run_dir: Path, *overrides: str) -> pd.DataFrame:
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from sidewalk.config import register_schemas, validate
+    from sidewalk.config import validate
     from sidewalk.experiment import WALL_CLOCK_COLUMNS, Trial
+    from sidewalk.schema import register_schemas
 
     register_schemas()
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):

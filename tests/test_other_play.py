@@ -9,9 +9,10 @@ import torch
 from hydra import compose, initialize_config_dir
 from torchrl.envs.utils import check_env_specs
 
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.envs.layouts import GridLayout
+from sidewalk.schema import register_schemas
 from sidewalk.symmetry import mirror_action, mirror_observation
 from sidewalk.views import SelfPlayView
 
@@ -33,7 +34,7 @@ def random_actions(view, generator: torch.Generator) -> torch.Tensor:
 
 @pytest.mark.parametrize("kind", CORES)
 def test_the_mirror_is_its_own_inverse_and_keeps_removed_agents_at_zero(kind):
-    view = SelfPlayView(CORES[kind](64, 0), legacy_keys=False)
+    view = SelfPlayView(CORES[kind](64, 0))
     torch.manual_seed(0)
     rollout = view.rollout(40, break_when_any_done=False)
     observation = rollout.get(("next", *OBS))
@@ -51,7 +52,7 @@ def test_the_mirror_is_its_own_inverse_and_keeps_removed_agents_at_zero(kind):
 def test_a_mirrored_partner_sees_the_mirror_and_its_action_steps_the_world_mirrored_back(kind):
     # Noise off: the mirror draws come from the env's generator, so the noise of the two views' worlds would differ.
     make = (lambda: ContinuousSidewalkEnv(64, seed=3)) if kind == "continuous" else (lambda: CORES[kind](64, 3))
-    other_play, plain = SelfPlayView(make(), other_play=True, legacy_keys=False), SelfPlayView(make(), legacy_keys=False)
+    other_play, plain = SelfPlayView(make(), other_play=True), SelfPlayView(make())
     td, reference = other_play.reset(), plain.reset()
     mirrored = other_play._mirrored
     assert mirrored[:, 1].any() and not mirrored[:, 1].all() and not mirrored[:, 0].any()
@@ -73,29 +74,29 @@ def test_a_mirrored_partner_sees_the_mirror_and_its_action_steps_the_world_mirro
 
 
 def test_mirror_draws_are_seeded():
-    draws = [SelfPlayView(DiscreteSidewalkEnv(64, seed=seed), other_play=True, legacy_keys=False) for seed in (5, 5, 6)]
+    draws = [SelfPlayView(DiscreteSidewalkEnv(64, seed=seed), other_play=True) for seed in (5, 5, 6)]
     for view in draws:
         view.reset()
     assert torch.equal(draws[0]._mirrored, draws[1]._mirrored)
     assert not torch.equal(draws[0]._mirrored, draws[2]._mirrored)
     # a plain view draws nothing: its worlds are those of the env alone
-    plain = SelfPlayView(DiscreteSidewalkEnv(64, seed=5), legacy_keys=False)
+    plain = SelfPlayView(DiscreteSidewalkEnv(64, seed=5))
     plain.reset()
     assert not plain._mirrored.any()
 
 
 @pytest.mark.parametrize("kind", ["image", "continuous"])
 def test_other_play_view_specs(kind):
-    check_env_specs(SelfPlayView(CORES[kind](8, 0), other_play=True, legacy_keys=False))
+    check_env_specs(SelfPlayView(CORES[kind](8, 0), other_play=True))
 
 
 def test_layouts_the_mirror_does_not_map_onto_themselves_are_refused():
     off_centre = GridLayout(rows=7, cols=15, starts=((3, 0), (3, 14)), goals=((3, 14), (3, 0)), center_row=3.0,
                             blocked=((1, 7),))
     with pytest.raises(ValueError, match="other_play=true needs a layout that its mirror"):
-        SelfPlayView(DiscreteSidewalkEnv(2, layout=off_centre), other_play=True, legacy_keys=False)
+        SelfPlayView(DiscreteSidewalkEnv(2, layout=off_centre), other_play=True)
     with pytest.raises(ValueError, match="other_play=true needs a layout"):
-        SelfPlayView(ContinuousSidewalkEnv(2, layout="zipper", length_m=6.0, width_m=2.0), other_play=True, legacy_keys=False)
+        SelfPlayView(ContinuousSidewalkEnv(2, layout="zipper", length_m=6.0, width_m=2.0), other_play=True)
 
 
 def compose_config(overrides: list[str]):

@@ -12,7 +12,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 from torchrl.envs.utils import check_env_specs
 
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
 from sidewalk.experiment import EVAL_SEED_OFFSET, Trial, make_view
@@ -25,6 +25,7 @@ from sidewalk.opponents.policy import (
     turn_observation,
 )
 from sidewalk.report.checkpoints import load_experiment, load_policy
+from sidewalk.schema import register_schemas
 from sidewalk.views import EgoView, SelfPlayView
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,7 +72,7 @@ def runs(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.mark.parametrize("core_cls", [DiscreteSidewalkEnv, ContinuousSidewalkEnv])
 def test_self_play_view_specs_and_each_agents_own_life_cycle(core_cls):
-    view = SelfPlayView(core_cls(16, seed=3), legacy_keys=False)
+    view = SelfPlayView(core_cls(16, seed=3))
     check_env_specs(view)
     rollout = view.rollout(200, break_when_any_done=False)
     nxt = rollout.get("next")
@@ -92,7 +93,7 @@ def test_self_play_view_specs_and_each_agents_own_life_cycle(core_cls):
 
 
 def test_self_play_evaluation_reports_team_metrics_without_an_ego():
-    view = SelfPlayView(DiscreteSidewalkEnv(32, seed=0), legacy_keys=False)
+    view = SelfPlayView(DiscreteSidewalkEnv(32, seed=0))
     metrics = evaluate(view, None, seed=1)
     assert "team/success_rate" in metrics and "agent1/success_rate" in metrics
     assert not any(key.startswith(("ego/", "other/")) for key in metrics)

@@ -16,9 +16,10 @@ from omegaconf import OmegaConf
 from tensordict import TensorDict
 
 from sidewalk.algos.ppo_lagrangian import PPOLagrangian, PPOLagrangianConfig
-from sidewalk.config import register_schemas, validate
+from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv
 from sidewalk.experiment import Trial
+from sidewalk.schema import register_schemas
 from sidewalk.views import EgoView
 
 torch.set_num_threads(1)  # small networks on a 2-core machine: threads only contend

@@ -5,6 +5,7 @@ freshness page says so, and a change to what a job computes is caught."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -13,17 +14,19 @@ from sidewalk.reference import (
     FOLDERS,
     META,
     PROBE,
-    REFERENCE_ROOT,
     STATUS,
     Reference,
     collect,
     compare,
+    find_reference_root,
+    main,
     probe,
     references,
     status_table,
 )
 from sidewalk.report.runs import load_run
 
+REFERENCE_ROOT = find_reference_root(Path(__file__).parent)  # this clone's results/reference
 JOBS = [(folder, job) for folder in FOLDERS for job in Reference.load(REFERENCE_ROOT / folder).jobs]
 
 
@@ -40,7 +43,7 @@ def test_each_reference_records_its_commit_and_a_probe_made_there(folder):
 def test_todays_code_makes_the_reference(folder, job):
     """A failure names the job and the first metric that moved: re-make that reference (its run.sh), or say in its
     reference.json ("explained") why the change leaves its numbers true."""
-    reference = Reference.load(REFERENCE_ROOT / folder)
+    reference = Reference.load(REFERENCE_ROOT / folder, REFERENCE_ROOT)
     recorded = reference.recorded_probe()
     (result,) = compare(recorded[recorded["job"] == job], probe({job: reference.jobs[job]}, progress=False))
     explained = reference.meta.get("explained", {}).get(job)
@@ -49,7 +52,7 @@ def test_todays_code_makes_the_reference(folder, job):
 
 def test_the_freshness_page_says_what_the_probes_say():
     page = (REFERENCE_ROOT / STATUS).read_text()
-    for reference in references():
+    for reference in references(REFERENCE_ROOT):
         (row,) = [line for line in page.splitlines() if line.startswith(f"| `{reference.name}/`")]
         assert f"commit `{reference.meta['commit'][:7]}`" in row
         committed = len(reference.committed_jobs())
@@ -58,6 +61,22 @@ def test_the_freshness_page_says_what_the_probes_say():
         # The probes are checked job by job above; a folder's "yes" is true when each of its jobs passes there.
         assert row.rstrip(" |").endswith("yes"), f"{STATUS} says {row!r}: re-run python -m sidewalk.reference check " \
                                                  "--write-status"
+
+
+def test_the_reference_root_is_found_above_the_current_folder_or_given(tmp_path, monkeypatch, capsys):
+    root = tmp_path / "clone" / "results" / "reference"
+    (root / "safe").mkdir(parents=True)
+    (tmp_path / "clone" / "docs").mkdir()
+    assert find_reference_root(tmp_path / "clone" / "docs") == root.resolve()
+    with pytest.raises(FileNotFoundError, match=r"no results/reference in .*: .* give the reference root with --root"):
+        find_reference_root(tmp_path)
+    monkeypatch.chdir(tmp_path)  # no clone here: the command names where it looked and how to give a root
+    for argv in (["check"], ["check", "--root", str(tmp_path / "nowhere")]):
+        assert main(argv) == 2
+        (error,) = capsys.readouterr().err.splitlines()
+        assert error.startswith("error: ") and tmp_path.name in error and "--root" in error
+    assert [reference.name for reference in references(REFERENCE_ROOT)] == ["results/reference",
+                                                                            "results/reference/safe"]
 
 
 def test_a_change_in_what_a_job_computes_is_caught_and_named():
@@ -96,9 +115,9 @@ def test_one_deterministic_episode_that_ends_otherwise_is_rounding_only_after_th
 def test_collected_runs_read_back_as_the_runs(tmp_path):
     """The committed small files of a run (metrics compressed at float32 precision) give the report what the run
     folder gives it."""
+    from sidewalk.compose import compose
     from sidewalk.config import validate
     from sidewalk.experiment import Trial
-    from sidewalk.reproduce import compose
 
     sweep = tmp_path / "sweeps" / "fig0"  # a sweep folder (multirun.yaml) in the root that is collected
     overrides = ["iterations=3", "eval_every=3", "eval_episodes=4", "num_envs=4", "logger=none", "checkpoint_every=0"]

@@ -1,5 +1,5 @@
-"""Every scenario renders in both domains with up to 16 agents told apart by colour, and ``runners/render.py``
-renders scripted N-agent episodes and writes the scenario gallery."""
+"""Every scenario renders in both domains with up to 16 agents told apart by colour, scripted N-agent episodes
+render (``sidewalk.render``), and ``runners/render.py`` writes the scenario gallery."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from PIL import Image
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.envs.layouts import scenario_names
 from sidewalk.envs.render import AGENT_COLOURS, BACKGROUND, CELL_LINE, TICK, WALL, colour
+from sidewalk.render import episodes, gallery
 
 SCENARIOS = scenario_names()  # the built-in scenarios, in the paper's order
 
@@ -103,8 +104,7 @@ def test_continuous_scenario_renders_every_agent_and_wall(scenario):
 
 
 def test_scripted_episode_with_n_agents_and_a_planner_ego():
-    render = runner("render")
-    frames, result = render.rollout_scripted(
+    frames, result = episodes.rollout_scripted(
         "discrete",
         "dijkstra",
         "dijkstra",
@@ -123,7 +123,6 @@ def test_scripted_episode_with_n_agents_and_a_planner_ego():
 
 
 def test_still_is_the_frame_where_agents_close_in():
-    render = runner("render")
     # Two agents walk toward each other and apart again; a third stands beside the first from the start.
     t = np.arange(21, dtype=float)
     gap = np.abs(t - 10) + 0.5
@@ -131,15 +130,14 @@ def test_still_is_the_frame_where_agents_close_in():
     positions[:, 1, 0] = gap
     positions[:, 2, 1] = 1.0
     present = np.ones((21, 3), dtype=bool)
-    assert render.crowded_frame(positions, present) == 10
+    assert gallery.crowded_frame(positions, present) == 10
 
 
 def test_gallery_covers_every_scenario_in_both_domains():
-    render = runner("render")
-    for scenario, domain in itertools.product(SCENARIOS, render.GALLERY_PLANNERS):
-        overrides = render.gallery_overrides(scenario, domain)
+    for scenario, domain in itertools.product(SCENARIOS, gallery.GALLERY_PLANNERS):
+        overrides = gallery.gallery_overrides(scenario, domain)
         assert f"env.layout={scenario}" in overrides
-        experiment, core = render.scripted_world(domain, render.GALLERY_PLANNERS[domain], 0, overrides)
+        experiment, core = episodes.scripted_world(domain, gallery.GALLERY_PLANNERS[domain], 0, overrides)
         assert experiment.env_params.layout == scenario and core.render(0).ndim == 3
 
 
@@ -151,13 +149,13 @@ def test_gallery_writes_a_still_a_gif_and_the_readme(tmp_path):
     with Image.open(still) as image:
         rgb = np.asarray(image.convert("RGB"))
         assert image.text["scenario"] == "door" and "--ego dijkstra" in image.text["command"]
-    _, core = render.scripted_world("discrete", "dijkstra", 0, render.gallery_overrides("door", "discrete"))
-    k = render.STILL_SCALE["discrete"]["pixels_per_cell"]
+    _, core = episodes.scripted_world("discrete", "dijkstra", 0, gallery.gallery_overrides("door", "discrete"))
+    k = gallery.STILL_SCALE["discrete"]["pixels_per_cell"]
     assert rgb.shape == (core.rows * k, core.cols * k, 3)
     for agent in range(core.n_agents):  # every goal star, at least, is in the agent's colour
         assert (rgb == np.array(colour(agent), dtype=np.uint8)).all(-1).any()
     with Image.open(gif) as image:
-        assert 2 <= image.n_frames <= render.GIF_MAX_FRAMES
+        assert 2 <= image.n_frames <= gallery.GIF_MAX_FRAMES
     readme = (tmp_path / "README.md").read_text()
     assert "(door_discrete.png)](door_discrete.gif)" in readme and "--gallery" in readme
 

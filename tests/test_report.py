@@ -19,17 +19,13 @@ import scipy.stats
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from sidewalk.config import register_schemas, validate
-from sidewalk.report import (
-    RunFolderError,
-    Settings,
-    find_run_folders,
-    group_conditions,
-    load_run,
-    write_report,
-)
+from sidewalk.config import validate
 from sidewalk.report.claims import TIE, above_zero, below_zero, check_claims
-from sidewalk.report.conditions import condition_config
+from sidewalk.report.conditions import condition_config, group_conditions
+from sidewalk.report.document import write_report
+from sidewalk.report.runs import RunFolderError, find_run_folders, load_run
+from sidewalk.report.tables import Settings
+from sidewalk.schema import register_schemas
 from sidewalk.stats import difference_interval, interval_estimate, iqm, mean_se
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -538,7 +534,7 @@ def test_report_on_a_real_two_seed_sweep(tiny_sweep, tmp_path):
 
 
 def test_a_run_folder_written_before_a_key_existed_still_replays(tiny_sweep, tmp_path):
-    from sidewalk.report import load_experiment
+    from sidewalk.report.checkpoints import load_experiment
 
     run = tmp_path / "old_run"
     shutil.copytree(next(tiny_sweep.glob("0_*")), run)

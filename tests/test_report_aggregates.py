@@ -15,8 +15,9 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from sidewalk.config import register_schemas
-from sidewalk.report import Settings, write_report
+from sidewalk.report.document import write_report
+from sidewalk.report.tables import Settings
+from sidewalk.schema import register_schemas
 from sidewalk.stats import interval_estimate, probability_of_improvement
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from sidewalk.bench.common import REPO_ROOT
-from sidewalk.bench.reproduce import (
+from sidewalk.bench.reproduce_wall_clock import (
     POOL,
     WARMUP,
     costs_from_metrics,

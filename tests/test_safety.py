@@ -120,7 +120,7 @@ def test_views_expose_cost_like_reward(kind):
     elif kind == "centralized":
         assert torch.equal(rollout["next", "cost"].squeeze(-1), world.sum(-1))
     else:
-        assert torch.equal(rollout["next", "agents", "cost"].squeeze(-1), world)
+        assert torch.equal(rollout["next", "agents", "info", "cost"].squeeze(-1), world)
     assert world.sum() > 0
 
 
@@ -217,8 +217,9 @@ def test_continuous_shield_corrections_stay_within_the_bounds():
 
 
 def run_trial(tmp_path: Path, *overrides: str) -> tuple[pd.DataFrame, dict]:
-    from sidewalk.config import register_schemas, validate
+    from sidewalk.config import validate
     from sidewalk.experiment import Trial
+    from sidewalk.schema import register_schemas
 
     register_schemas()
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
@@ -250,7 +251,7 @@ def test_shield_must_be_a_bool():
     """The schema's bool type rejects it while the config is composed, naming the value."""
     from hydra.errors import ConfigCompositionException
 
-    from sidewalk.config import register_schemas
+    from sidewalk.schema import register_schemas
 
     register_schemas()
     with (

@@ -178,7 +178,7 @@ def test_a_second_ctrl_c_stops_at_once():
     # by SIGINT where it stands, which the atomic writes (tests/test_experiment.py's kill -9) make safe.
     script = """
 import os, signal, time
-from sidewalk.experiment import StopSignals
+from sidewalk.stops import StopSignals
 with StopSignals() as signals:
     os.kill(os.getpid(), signal.SIGINT); time.sleep(0.2)
     print("recorded", signals.received, flush=True)

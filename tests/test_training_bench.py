@@ -102,8 +102,8 @@ def test_equal_settings_give_our_dqn_sb3s_network():
     """At the equal setup our Q-network (no dueling head) has the parameter shapes of SB3's CnnPolicy Q-network with
     the paper's extractor; at the defaults it has the dueling head's two streams."""
     from sidewalk.algos.dqn import DQN
-    from sidewalk.bench.common import compose_experiment
     from sidewalk.bench.training import BASE_OVERRIDES, EQUAL_NETWORK, make_sb3_dqn, sb3_settings
+    from sidewalk.compose import compose_experiment
     from sidewalk.experiment import make_view
 
     def our_shapes(*overrides):
@@ -122,8 +122,8 @@ def test_plain_pytorch_reference_is_the_same_math_as_our_step():
     passes and a backward), 864 MFLOP at the defaults (the dueling head; double DQN's third pass), and its network
     has our Q-network's parameter shapes."""
     from sidewalk.algos.dqn import DQN
-    from sidewalk.bench.common import compose_experiment
     from sidewalk.bench.training import BASE_OVERRIDES, EQUAL_NETWORK, PlainQNetwork, plain_gradient_steps
+    from sidewalk.compose import compose_experiment
     from sidewalk.experiment import make_view
 
     for extra, mflop in ((EQUAL_NETWORK, 605), ((), 864)):

@@ -286,6 +286,18 @@ def test_make_view_builds_each_kind():
     assert isinstance(make_view("centralized", core("continuous")), CentralizedView)
 
 
+def test_view_for_opponent_builds_the_view_an_experiment_names():
+    from sidewalk.views import SelfPlayView, view_for_opponent
+
+    assert isinstance(view_for_opponent(core("discrete"), "centralized", ego=1), CentralizedView)  # ego unread
+    assert view_for_opponent(core("discrete"), "self", other_play=True).other_play
+    view = view_for_opponent(core("discrete", layout="circle", n_agents=3), "random", 1, end_on_ego_done=True)
+    assert isinstance(view, EgoView) and view.ego == 1 and view.end_on_ego_done and view.opponent.controlled == [0, 2]
+    assert isinstance(make_view("self", core("discrete")), SelfPlayView)
+    with pytest.raises(ValueError, match="other_play=True trains self-play partners"):
+        view_for_opponent(core("discrete"), "random", other_play=True)
+
+
 def test_make_view_names_the_valid_kinds():
     with pytest.raises(ValueError, match="'ego', 'centralized', 'self', 'all'"):
         make_view("joint", core("discrete"))
@@ -298,6 +310,10 @@ def test_views_without_an_opponent_reject_one():
         make_view("all", core("discrete"), ego=1)
     with pytest.raises(ValueError, match="CentralizedView"):
         EgoView(core("discrete"), opponent="centralized")
+    with pytest.raises(ValueError, match=r"use make_view\('self', env\)"):
+        make_view("ego", core("discrete"), opponent="self")
+    with pytest.raises(TypeError, match="'end_on_ego_done' for the 'self' view"):
+        make_view("self", core("discrete"), end_on_ego_done=True)
 
 
 def test_unknown_opponent_names_the_valid_ones():
@@ -383,7 +399,7 @@ def test_ppo_loss_runs_on_the_continuous_ego_view():
 
 
 def test_bench_section_reports_every_view():
-    from sidewalk.bench.views import run
+    from sidewalk.bench.view_speed import run
 
     rows = run(num_envs=4, threads=1, seconds=0.01)
     views = {(row["face"], row["view"], row["domain"], row["opponent"]) for row in rows}
@@ -401,7 +417,7 @@ def test_views_answer_what_torchrl_multiagent_trainers_ask_of_a_vmas_env(core_cl
     from sidewalk.views import SelfPlayView
 
     core = core_cls(2, seed=0, max_steps=37)
-    view = SelfPlayView(core, legacy_keys=False)
+    view = SelfPlayView(core)
     assert core.max_steps == view.max_steps == EgoView(core_cls(2, seed=0, max_steps=37)).max_steps == 37
     assert view.group_map == core.group_map == {"agents": ["agent_0", "agent_1"]}
     view.reset()
@@ -416,7 +432,7 @@ def test_views_answer_what_torchrl_multiagent_trainers_ask_of_a_vmas_env(core_cl
 def test_self_play_keys_read_as_vmas_wrapper_keys(domain):
     from sidewalk.views import SelfPlayView
 
-    view = SelfPlayView(core(domain, num_envs=3, layout="teams", n_agents=4), legacy_keys=False)
+    view = SelfPlayView(core(domain, num_envs=3, layout="teams", n_agents=4))
     check_env_specs(view)
     agents = view.full_observation_spec[AGENT_GROUP]
     # Everything under the group but "info" is the input: a VMAS-style trainer (BenchMARL) drops "info" and is right.
@@ -451,7 +467,7 @@ def test_a_crashed_agent_past_its_end_is_paid_nothing_and_stays_terminated():
     target there is 0 and its actions there change nothing."""
     from sidewalk.views import SelfPlayView
 
-    view = SelfPlayView(DiscreteSidewalkEnv(1, seed=0), legacy_keys=False)
+    view = SelfPlayView(DiscreteSidewalkEnv(1, seed=0))
     td = view.reset()
     steps = []
     for _ in range(6):  # agent 0 goes up until it hits the wall, agent 1 keeps walking
@@ -467,17 +483,17 @@ def test_a_crashed_agent_past_its_end_is_paid_nothing_and_stays_terminated():
     assert not any(bool(step.get("done")) for step in steps)  # the world goes on: agent 1 still walks
 
 
-def test_the_earlier_self_play_keys_still_work_and_warn_once():
+def test_the_earlier_self_play_keys_are_opt_in_and_warn_of_their_removal():
     from sidewalk.views import SelfPlayView
-    from sidewalk.views.selfplay import _warn_legacy_keys
 
-    _warn_legacy_keys.cache_clear()
-    with pytest.warns(FutureWarning, match=r"\('agents', 'info', 'mask'\).*legacy_keys=False"):
-        view = SelfPlayView(DiscreteSidewalkEnv(2, seed=0))
-    check_env_specs(view)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        SelfPlayView(DiscreteSidewalkEnv(2, seed=0))  # once per process
+        plain = SelfPlayView(DiscreteSidewalkEnv(2, seed=0))  # the default writes no earlier keys, and warns not
+    assert set(plain.full_observation_spec[AGENT_GROUP].keys()) == {"observation", "info"}
+    with pytest.warns(DeprecationWarning, match=r"legacy_keys=True.*removed in sidewalk 0\.3") as caught:
+        view = SelfPlayView(DiscreteSidewalkEnv(2, seed=0), legacy_keys=True)
+    assert {w.filename for w in caught if "legacy_keys" in str(w.message)} == {__file__}  # it names the caller's line
+    check_env_specs(view)
     td = view.rollout(5)
     for key in ("cost", "mask"):
         assert torch.equal(td.get(("next", AGENT_GROUP, key)), td.get(("next", AGENT_GROUP, "info", key)))

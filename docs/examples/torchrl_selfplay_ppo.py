@@ -1,7 +1,7 @@
 """Two agents learn the continuous sidewalk in self-play with TorchRL's parts only (docs/multiagent.md).
 
 Nothing of sidewalk's learners is used: the self-play view's per-agent keys -- each agent's own ``done``/
-``terminated`` and ``("agents", "mask")`` -- are all TorchRL's ``GAE`` and ``ClipPPOLoss`` need to end each agent's
+``terminated`` and ``("agents", "info", "mask")`` -- are all TorchRL's ``GAE`` and ``ClipPPOLoss`` need to end each agent's
 return at its own crash and to leave its later steps out of the loss. Settings a user may choose: TorchRL's
 ``mappo_ippo`` example's networks (``MultiAgentMLP``, shared parameters, tanh), ``TanhNormal`` with a bounded mean,
 no observation normalisation, and the dense progress shaping of ``reward.c_progress``.
@@ -27,7 +27,7 @@ from torchrl.objectives.value import GAE
 from sidewalk.envs import ContinuousSidewalkEnv
 from sidewalk.views import SelfPlayView
 
-OBS, ACTION, MASK = ("agents", "observation"), ("agents", "action"), ("agents", "mask")
+OBS, ACTION, MASK = ("agents", "observation"), ("agents", "action"), ("agents", "info", "mask")
 
 
 def make_env(num_envs: int, seed: int) -> EnvBase:

@@ -5,11 +5,6 @@ and ppo_lagrangian (safe RL: PPO under a limit on the expected episode cost). Mu
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 from sidewalk.algos.base import AlgoConfig, Algorithm, MultiAgentAlgorithm, MultiAgentConfig
-from sidewalk.registry import LEARNERS
 
-ALGORITHMS: Mapping[str, type[Algorithm]] = LEARNERS  # name -> Algorithm class, each learner imported on first use
-
-__all__ = ["ALGORITHMS", "AlgoConfig", "Algorithm", "MultiAgentAlgorithm", "MultiAgentConfig"]
+__all__ = ["AlgoConfig", "Algorithm", "MultiAgentAlgorithm", "MultiAgentConfig"]

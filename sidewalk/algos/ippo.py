@@ -18,7 +18,7 @@ checkpoint keeps.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import torch
@@ -32,11 +32,10 @@ from torchrl.modules import MultiAgentConvNet, MultiAgentMLP, ProbabilisticActor
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from sidewalk._checks import check_int, check_range
 from sidewalk._torchrl import multi_agent_mlp_last_layer
 from sidewalk.algos.base import FixedExplorationPolicy, MultiAgentAlgorithm, MultiAgentConfig
 from sidewalk.algos.networks import PAPER_CONV, RunningNorm, VectorEncoder, is_image_spec, tanh_normal
-from sidewalk.algos.ppo import LOSS_LOGS, clipped_ppo_update
+from sidewalk.algos.ppo import LOSS_LOGS, PPOConfig, clipped_ppo_update
 from sidewalk.envs.base import AGENT_GROUP
 
 LOG_PROB_KEY = (AGENT_GROUP, "action_log_prob")
@@ -44,41 +43,14 @@ VALUE_KEY = (AGENT_GROUP, "state_value")
 
 
 @dataclass
-class IPPOConfig(MultiAgentConfig):
+class IPPOConfig(PPOConfig, MultiAgentConfig):
     """IPPO settings: our single-agent PPO's (CleanRL's continuous-control preset, ``sidewalk.algos.ppo``) for every
-    agent, with the batch and run length measured on the continuous two-agent sidewalk (see each field)."""
+    agent, a minibatch counting world-steps (each holds every agent's transition), and ``share_params``; the run
+    length measured on the continuous two-agent sidewalk."""
 
     name: str = "ippo"
-    frames_per_batch: int = 2048  # as PPO: 16 steps of 128 worlds, 4096 agent-steps with two agents
-    default_num_envs: int = 128
     default_iterations: int = 200
     default_eval_every: int = 10
-    gamma: float = 0.99
-    lr: float = 3e-4
-    max_grad_norm: float = 0.5
-    gae_lambda: float = 0.95
-    clip_epsilon: float = 0.2
-    epochs: int = 10
-    minibatch_size: int = 64  # world-steps (each holds every agent's transition)
-    entropy_coef: float = 0.0
-    critic_coef: float = 0.5
-    hidden: list[int] = field(default_factory=lambda: [64, 64])
-    normalize_observations: bool = True  # vectors only, not images
-    mean_bound: float = 5.0  # TanhNormal's pre-squash mean within ±this (TorchRL's tanh_loc upscale); 0: unbounded
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        check_range("algo.gae_lambda", self.gae_lambda, 0.0, 1.0)
-        check_range("algo.clip_epsilon", self.clip_epsilon, 0.0, 1.0, low_open=True)
-        check_int("algo.epochs", self.epochs, 1)
-        check_int("algo.minibatch_size", self.minibatch_size, 1)
-        check_range("algo.entropy_coef", self.entropy_coef, 0.0)
-        check_range("algo.critic_coef", self.critic_coef, 0.0)
-        check_range("algo.mean_bound", self.mean_bound, 0.0)
-        for width in self.hidden:
-            check_int("algo.hidden[]", width, 1)
-        if not isinstance(self.normalize_observations, bool):
-            raise TypeError(f"algo.normalize_observations={self.normalize_observations!r} must be a bool")
 
 
 class Pixels(nn.Module):

@@ -1,4 +1,4 @@
-"""Helpers shared by the benchmark sections: timing, tables, experiments composed from ``conf/``, and the
+"""Helpers shared by the benchmark sections: timing, tables, git worktrees of other revisions, and the
 Stable-Baselines3 adapter of the gymnasium face."""
 
 from __future__ import annotations
@@ -15,10 +15,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase
 
-from sidewalk.paths import CONFIG_DIR
-
 REPO_ROOT = Path(__file__).resolve().parents[2]  # a clone: the benchmarks time git worktrees of it
-CONF_DIR = CONFIG_DIR
 
 
 @contextmanager
@@ -111,20 +108,6 @@ def format_table(rows: Sequence[dict], columns: Iterable[str] | None = None) -> 
     lines.append("  ".join("-" * w for w in widths))
     lines += ["  ".join(v.rjust(w) for v, w in zip(r, widths)) for r in table]
     return "\n".join(lines)
-
-
-def compose_experiment(overrides: Sequence[str]):
-    """The validated ``Experiment`` that ``runners/main.py`` would run with these overrides (read from ``conf/``)."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-
-    from sidewalk.config import register_schemas, validate
-
-    register_schemas()
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose("config", overrides=list(overrides))
-    return validate(cfg)
 
 
 def sb3_vec_env(env_id: str, num_envs: int, seed: int, **kwargs: Any):

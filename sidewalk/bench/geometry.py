@@ -30,7 +30,8 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tqdm import tqdm
 
-from sidewalk.bench.common import compose_experiment, format_table, torch_threads
+from sidewalk.bench.common import format_table, torch_threads
+from sidewalk.compose import compose_experiment
 
 EPISODES = 1024
 PRM_SEEDS = 1000
@@ -74,9 +75,9 @@ def untrained(
     opponents: Sequence[str] = OPPONENTS,
 ) -> list[dict]:
     """Ego (or team) success of each learner's untrained sampling policy, per opponent."""
-    from sidewalk.algos import ALGORITHMS
     from sidewalk.evaluate import evaluate
     from sidewalk.experiment import make_view
+    from sidewalk.registry import LEARNERS
 
     rows = []
     for algo_name in learners:
@@ -84,7 +85,7 @@ def untrained(
             experiment = _experiment(opponent, algo_name, overrides)
             torch.manual_seed(seed)
             view = make_view(experiment, episodes, seed)
-            algo = ALGORITHMS[algo_name](experiment.algo, view)
+            algo = LEARNERS[algo_name](experiment.algo, view)
             metrics = evaluate(view, algo.collection_policy(), seed=seed, deterministic=False)  # it samples
             outcome = _outcome(metrics, opponent)
             rows.append(

@@ -28,9 +28,9 @@ def run(algos: tuple[str, ...] = ("ippo", "mappo"), repeats: int = 4, threads: l
         num_envs: list[int] | None = None) -> list[dict[str, Any]]:
     from torchrl.envs import RewardSum, TransformedEnv
 
-    from sidewalk.algos import ALGORITHMS
-    from sidewalk.bench.common import compose_experiment
+    from sidewalk.compose import compose_experiment
     from sidewalk.experiment import make_view
+    from sidewalk.registry import LEARNERS
 
     torch.set_num_threads((threads or [1])[0])
     rows = []
@@ -39,7 +39,7 @@ def run(algos: tuple[str, ...] = ("ippo", "mappo"), repeats: int = 4, threads: l
         for name, overrides in SETTINGS.items():
             experiment = compose_experiment(["env=discrete", "opponent=self", f"algo={algo_name}", "noise=0", *overrides])
             env = TransformedEnv(make_view(experiment, experiment.num_envs, 0), RewardSum())
-            algo = ALGORITHMS[algo_name](experiment.algo, env)
+            algo = LEARNERS[algo_name](experiment.algo, env)
             built[name] = (env, algo, experiment.algo.frames_per_batch // experiment.num_envs)
         seconds: dict[str, list[float]] = {name: [] for name in SETTINGS}
         for repeat in range(repeats):

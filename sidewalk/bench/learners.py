@@ -42,7 +42,8 @@ import torch
 from torch import nn
 
 from sidewalk._checks import check_choice, check_int
-from sidewalk.bench.common import compose_experiment, format_table, sb3_vec_env, torch_threads
+from sidewalk.bench.common import format_table, sb3_vec_env, torch_threads
+from sidewalk.compose import compose_experiment
 from sidewalk.opponents.base import available_opponents
 
 ENV_ID = "sidewalk/Continuous-v0"

@@ -84,7 +84,8 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.modules.models.multiagent import MultiAgentMLP
 from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
-from sidewalk.bench.common import compose_experiment, format_table, torch_threads
+from sidewalk.bench.common import format_table, torch_threads
+from sidewalk.compose import compose_experiment
 
 NUM_ENVS = (4096,)
 THREADS = (1, 2)
@@ -121,15 +122,15 @@ class Learner:
 def ours_learner(num_envs: int, steps: int, seed: int = SEED) -> Learner:
     """Our IPPO self-play on the continuous sidewalk as ``Trial`` builds it, at ``num_envs`` worlds and
     ``num_envs × steps`` frames an iteration; IPPO's defaults otherwise."""
-    from sidewalk.algos import ALGORITHMS
     from sidewalk.experiment import collector_frames_per_batch, make_view
+    from sidewalk.registry import LEARNERS
 
     experiment = compose_experiment(
         [*OURS_OVERRIDES, f"num_envs={num_envs}", f"algo.frames_per_batch={num_envs * steps}", f"seed={seed}"]
     )
     torch.manual_seed(seed)
     env = TransformedEnv(make_view(experiment, experiment.num_envs, experiment.seed), RewardSum())
-    algo = ALGORITHMS[experiment.algo.name](experiment.algo, env, device=experiment.device)
+    algo = LEARNERS[experiment.algo.name](experiment.algo, env, device=experiment.device)
     frames_per_batch = collector_frames_per_batch(experiment)
     collector = Collector(env, algo.collection_policy(), frames_per_batch=frames_per_batch, total_frames=-1,
                           device=experiment.device, auto_register_policy_transforms=False)

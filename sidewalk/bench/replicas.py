@@ -37,7 +37,7 @@ def replica_learners(name: str, replicas: int) -> tuple[list[Algorithm], list[En
     """``replicas`` learners ``name`` at their defaults, replica r built on its own world (seed r) after
     ``torch.manual_seed(r)``: calling it twice gives two identical sets (a deep copy of a PPO learner would not
     be one: its optimiser keeps the original's parameters)."""
-    cls = LEARNERS.get(name)
+    cls = LEARNERS[name]
     config = cls.Config()
     learners, envs = [], []
     for seed in range(replicas):
@@ -74,7 +74,7 @@ def time_learner(name: str, replicas: int, repeats: int) -> dict[str, Any]:
     replica axis."""
     looped, envs = replica_learners(name, replicas)
     batches = collect_batches(looped, envs)
-    cls = LEARNERS.get(name)
+    cls = LEARNERS[name]
     torch.manual_seed(0)
     replicated = cls(cls.Config(), envs[0], replicas=replicas)
     stacked = torch.stack(batches)  # (R, worlds, time): each replica's batch on the replica axis

@@ -69,7 +69,7 @@ import torch
 from torchrl.envs import EnvBase
 
 from sidewalk.bench.common import format_table, seconds_per_call, torch_threads
-from sidewalk.bench.envs import _random_actions
+from sidewalk.bench.env_speed import _random_actions
 from sidewalk.envs import ContinuousParams, ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.envs.layouts import random_plane
 

@@ -56,8 +56,9 @@ from typing import Any
 import torch
 from torch import nn
 
-from sidewalk.bench.common import compose_experiment, format_table, torch_threads
+from sidewalk.bench.common import format_table, torch_threads
 from sidewalk.bench.common import sb3_vec_env as common_sb3_vec_env
+from sidewalk.compose import compose_experiment
 
 TARGET = 0.9
 CONFIRM = 2  # further evaluations ≥ TARGET after a first: the criterion is three in a row

@@ -56,7 +56,7 @@ from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, RENDER_MODES, SidewalkEnv
 from sidewalk.envs.grid import DiscreteSidewalkEnv
 from sidewalk.envs.unicycle import OBSERVATION_FIELDS, ContinuousSidewalkEnv
 from sidewalk.registry import OPPONENTS
-from sidewalk.views import WORLD, CentralizedView, EgoView
+from sidewalk.views import WORLD, CentralizedView, EgoView, view_for_opponent
 
 DOMAINS: dict[str, type[SidewalkEnvBase]] = {
     "discrete": DiscreteSidewalkEnv,
@@ -91,14 +91,9 @@ def build_view(
         extra = [name for name, value in given.items() if value is not None]
         if extra:
             raise ValueError(f"opponent='centralized' has no ego agent; drop {', '.join(extra)}")
-        return CentralizedView(core, shield=shield)
-    return EgoView(
-        core,
-        opponent=opponent,
-        ego=0 if ego is None else ego,
-        end_on_ego_done=bool(end_on_ego_done),
+    return view_for_opponent(
+        core, opponent, 0 if ego is None else ego, shield=shield, end_on_ego_done=bool(end_on_ego_done),
         opponent_kwargs=opponent_kwargs,
-        shield=shield,
     )
 
 

@@ -105,10 +105,10 @@ def saved_description(run_dir: str | Path) -> dict[str, Any]:
 def read_partner(path: str | Path, map_location: str | torch.device = "cpu") -> Partner:
     """The learner saved in the run folder ``path`` (its ``policy.pt``; a folder from before ``policy.pt``
     described itself is read through its ``config.yaml``). Raises ``FileNotFoundError`` naming what is missing."""
-    from sidewalk.algos import ALGORITHMS
     from sidewalk.envs.grid import DiscreteParams
     from sidewalk.envs.rewards import RewardParams
     from sidewalk.envs.unicycle import ContinuousParams
+    from sidewalk.registry import LEARNERS
     from sidewalk.run_folder import POLICY, policy_file, read_torch_file
 
     run_dir = Path(path)
@@ -128,7 +128,7 @@ def read_partner(path: str | Path, map_location: str | torch.device = "cpu") -> 
     described = state.get("description")
     if described is None:  # written before policy.pt described its world: the folder's config.yaml does
         described = saved_description(run_dir)
-    algo_cls = ALGORITHMS[described["algo_name"]]
+    algo_cls = LEARNERS[described["algo_name"]]
     algo_config = algo_cls.Config(**described["algo"])
     params = dict(described["env_params"])
     params["rewards"] = RewardParams(**params["rewards"])
@@ -272,17 +272,13 @@ class PolicyOpponent(Opponent):
         the one training saw), and the joint-action decoder of a centralized partner."""
         from torchrl.envs import RewardSum, TransformedEnv
 
-        from sidewalk.algos import ALGORITHMS
-        from sidewalk.views import CentralizedView, EgoView, SelfPlayView
+        from sidewalk.registry import LEARNERS
+        from sidewalk.views import view_for_opponent
 
         core = _env_class(partner.domain)(1, device=env.device, seed=0, params=partner.env_params)
-        if partner.opponent == "self":
-            view = SelfPlayView(core, legacy_keys=False)
-        elif partner.opponent == "centralized":
-            view = CentralizedView(core)
-        else:
-            view = EgoView(core, opponent="random", ego=partner.ego)
-        algo = ALGORITHMS[partner.algo_name](partner.algo_config, TransformedEnv(view, RewardSum()), device=env.device)
+        # The networks need only the view's specs: a random opponent stands in for whom an ego learner trained against.
+        view = view_for_opponent(core, partner.opponent if partner.plays_every_agent else "random", partner.ego or 0)
+        algo = LEARNERS[partner.algo_name](partner.algo_config, TransformedEnv(view, RewardSum()), device=env.device)
         algo.load_policy_state_dict(partner.state)
         policy = algo.collection_policy() if sample else algo.evaluation_policy()
         decode = view.decode_action if partner.opponent == "centralized" and partner.domain == "discrete" else None

@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from sidewalk.report.conditions import Condition
-from sidewalk.report.runs import POLICY_FILES, Run, policy_file
+from sidewalk.report.runs import POLICY_FILES, Run
+from sidewalk.run_folder import policy_file
 
 
 def load_experiment(run_dir: str | Path, device: str = "cpu"):
@@ -32,7 +33,7 @@ def load_policy(run_dir: str | Path, experiment, env):
     rebuilt for ``env`` (a view built from ``experiment``)."""
     from torchrl.envs import RewardSum, TransformedEnv
 
-    from sidewalk.algos import ALGORITHMS
+    from sidewalk.registry import LEARNERS
     from sidewalk.run_folder import read_torch_file
 
     path = policy_file(run_dir)
@@ -41,7 +42,7 @@ def load_policy(run_dir: str | Path, experiment, env):
     # mmap: a checkpoint's replay buffer can be large and is not needed here.
     state = read_torch_file(path, map_location=experiment.device, mmap=True)
     # The learner is built on the env as training built it (a RewardSum on top), so every spec matches.
-    algo = ALGORITHMS[experiment.algo.name](
+    algo = LEARNERS[experiment.algo.name](
         experiment.algo, TransformedEnv(env, RewardSum()), device=experiment.device
     )
     algo.load_policy_state_dict(state.get("algorithm", state))  # a checkpoint, or policy.pt

@@ -10,7 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from sidewalk.later_keys import with_later_keys
-from sidewalk.report.runs import SUMMARY, Run
+from sidewalk.report.runs import Run
+from sidewalk.run_folder import SUMMARY
 
 # Keys that change neither what a run learns nor what it measures, so they never split runs into conditions
 # (a resumed run's config says resume=true; a run logged to TensorBoard is the same experiment as one logged to CSV).

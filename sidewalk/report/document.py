@@ -28,17 +28,9 @@ from sidewalk.report.conditions import (
 from sidewalk.report.crossplay import crossplay_sections, find_crossplay
 from sidewalk.report.figures import family_sections, paper_figure_section, trajectory_section
 from sidewalk.report.marl_eval import write_marl_eval
-from sidewalk.report.runs import (
-    CONFIG,
-    METRICS,
-    Run,
-    RunFolderError,
-    Skipped,
-    find_run_folders,
-    load_run,
-    shown_path,
-)
+from sidewalk.report.runs import Run, RunFolderError, Skipped, find_run_folders, load_run, shown_path
 from sidewalk.report.tables import NumberLog, Settings, distinct_range, records_safety
+from sidewalk.run_folder import CONFIG, METRICS
 
 log = logging.getLogger(__name__)
 

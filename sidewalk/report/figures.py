@@ -25,7 +25,7 @@ from sidewalk.report.conditions import (
     panel_titles,
     varying_keys,
 )
-from sidewalk.report.runs import POLICY_FILES, SUMMARY, shown_path
+from sidewalk.report.runs import POLICY_FILES, shown_path
 from sidewalk.report.tables import (
     CUMULATIVE_COST,
     NOT_RECORDED,
@@ -42,7 +42,7 @@ from sidewalk.report.tables import (
     safety_finals,
     safety_table,
 )
-from sidewalk.run_folder import UnsafeFile
+from sidewalk.run_folder import SUMMARY, UnsafeFile
 
 log = logging.getLogger(__name__)
 

@@ -16,7 +16,7 @@ from typing import Any
 import pandas as pd
 from omegaconf import OmegaConf
 
-from sidewalk.run_folder import (  # noqa: F401
+from sidewalk.run_folder import (
     CHECKPOINT,
     CONFIG,
     GROUP_DIR,
@@ -24,7 +24,6 @@ from sidewalk.run_folder import (  # noqa: F401
     METRICS_COMPRESSED,
     POLICY,
     SUMMARY,
-    policy_file,
 )
 
 ERROR = "error.txt"

@@ -11,6 +11,9 @@ Three views of one batched core env (``DiscreteSidewalkEnv`` or ``ContinuousSide
   agent with its own life cycle (see the class), for the multi-agent learners (IPPO, MAPPO, IQL, VDN, QMIX);
 - the all-agents view is the multi-agent core env itself (``make_view("all", env)`` returns it).
 
+``view_for_opponent(env, opponent, ego)`` builds the view an experiment's ``opponent=`` names (``centralized``,
+``self``, or an opponent playing every agent but the ego); ``make_view(kind, env)`` builds the view of a kind with it.
+
 Every view takes ``shield=True``: before the core steps, the safety shield (the core's ``shield_action``, a one-step
 look-ahead on the known dynamics) replaces the learner's actions that would collide -- the ego's in an ego view,
 every agent's in the others -- with the nearest safe ones. The shield is part of the environment the learner sees:
@@ -35,6 +38,7 @@ The ego view adds ``("info", k)``, the ego agent's own flags, (B, 1) bool, so ``
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 from torchrl.envs import EnvBase
@@ -48,6 +52,39 @@ from sidewalk.views.ego import EgoView
 from sidewalk.views.selfplay import SelfPlayView
 
 VIEW_KINDS = ("ego", "centralized", "self", "all")
+# What each kind of view takes beyond the env, ego and shield: the settings make_view passes on.
+VIEW_SETTINGS = {"ego": ("end_on_ego_done", "opponent_kwargs"), "centralized": (), "self": ("other_play",), "all": ()}
+
+
+def view_for_opponent(
+    env: SidewalkEnvBase,
+    opponent: str | Opponent,
+    ego: int = 0,
+    *,
+    shield: bool = False,
+    end_on_ego_done: bool = False,
+    opponent_kwargs: Mapping[str, Any] | None = None,
+    other_play: bool = False,
+) -> EnvBase:
+    """The view a learner plays ``env`` through, for ``opponent`` as an experiment names it (``opponent=``):
+    ``"centralized"`` (``CentralizedView``), ``"self"`` (``SelfPlayView``, with ``other_play``), or else an
+    ``EgoView`` of agent ``ego`` (with ``end_on_ego_done``) against ``opponent`` -- a registered name, built with
+    ``opponent_kwargs``, or an ``Opponent`` on ``env`` playing every other agent. ``shield=True`` shields the
+    learner's actions.
+
+    The ego's settings go unread where the learner plays every agent (a config carries them whatever its choice);
+    ``other_play`` for any view but self-play is an error.
+    """
+    if other_play and opponent != "self":
+        raise ValueError(f"other_play=True trains self-play partners: use opponent='self', not opponent={opponent!r}")
+    if opponent == "centralized":
+        return CentralizedView(env, shield=shield)
+    if opponent == "self":
+        return SelfPlayView(env, shield=shield, other_play=other_play)
+    return EgoView(
+        env, opponent=opponent, ego=ego, end_on_ego_done=end_on_ego_done, opponent_kwargs=opponent_kwargs,
+        shield=shield,
+    )
 
 
 def make_view(
@@ -56,26 +93,32 @@ def make_view(
     opponent: str | Opponent | None = None,
     ego: int | None = None,
     shield: bool = False,
-    **kwargs: Any,
+    **settings: Any,
 ) -> EnvBase:
-    """The view ``kind`` of ``env``: ``"ego"`` (``EgoView``; ``opponent`` defaults to ``"random"``, ``kwargs`` go
-    to ``EgoView``), ``"centralized"`` (``CentralizedView``), ``"self"`` (``SelfPlayView``; ``kwargs`` go to it:
-    ``other_play``, ``legacy_keys``) or ``"all"`` (the multi-agent core env itself).
+    """The view ``kind`` of ``env`` (``view_for_opponent`` builds it): ``"ego"`` (``EgoView``; ``opponent``
+    defaults to ``"random"``; ``settings``: ``end_on_ego_done``, ``opponent_kwargs``), ``"centralized"``
+    (``CentralizedView``), ``"self"`` (``SelfPlayView``; ``settings``: ``other_play``) or ``"all"`` (the
+    multi-agent core env itself).
 
     ``opponent`` and ``ego`` (default 0) apply only to ``"ego"``; giving either to another view is an error, as is
-    an opponent that does not play the env's domain. ``shield=True`` shields the learner's actions (every view but
-    ``"all"``, the bare core, which has no learner to shield).
+    an opponent that does not play the env's domain, or a setting the view does not take. ``shield=True`` shields
+    the learner's actions (every view but ``"all"``, the bare core, which has no learner to shield).
     """
     check_choice("kind", kind, VIEW_KINDS)
     if not isinstance(env, SidewalkEnvBase):
         raise TypeError(
             f"env={env!r} must be a Sidewalk core env (DiscreteSidewalkEnv or ContinuousSidewalkEnv)"
         )
+    unexpected = [name for name in settings if name not in VIEW_SETTINGS[kind]]
+    if unexpected:
+        raise TypeError(f"unexpected argument(s) {', '.join(map(repr, unexpected))} for the {kind!r} view")
     if kind == "ego":
-        return EgoView(
-            env, opponent="random" if opponent is None else opponent, ego=0 if ego is None else ego, shield=shield,
-            **kwargs,
-        )
+        opponent = "random" if opponent is None else opponent
+        if isinstance(opponent, str) and opponent in ("centralized", "self"):
+            raise ValueError(
+                f"opponent={opponent!r} means the learner plays every agent: use make_view({opponent!r}, env)"
+            )
+        return view_for_opponent(env, opponent, 0 if ego is None else ego, shield=shield, **settings)
     if opponent is not None and not (kind == "centralized" and opponent == "centralized"):
         raise ValueError(
             f"the {kind!r} view has no opponent (the learner plays every agent); got opponent={opponent!r}"
@@ -84,12 +127,8 @@ def make_view(
         raise ValueError(
             f"the {kind!r} view has no ego agent (the learner plays every agent); got ego={ego!r}"
         )
-    if kind == "self":
-        return SelfPlayView(env, shield=shield, **kwargs)
-    if kwargs:
-        raise TypeError(f"unexpected argument(s) {', '.join(map(repr, kwargs))} for the {kind!r} view")
-    if kind == "centralized":
-        return CentralizedView(env, shield=shield)
+    if kind != "all":
+        return view_for_opponent(env, kind, shield=shield, **settings)
     if shield:
         raise ValueError(
             "shield=True: the 'all' view is the bare core env; call env.shield_action, or use kind='self'"
@@ -97,4 +136,7 @@ def make_view(
     return env
 
 
-__all__ = ["MAX_JOINT_ACTIONS", "VIEW_KINDS", "WORLD", "CentralizedView", "EgoView", "SelfPlayView", "make_view"]
+__all__ = [
+    "MAX_JOINT_ACTIONS", "VIEW_KINDS", "WORLD", "CentralizedView", "EgoView", "SelfPlayView", "make_view",
+    "view_for_opponent",
+]

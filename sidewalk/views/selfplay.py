@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import warnings
 
 import torch
@@ -13,18 +12,6 @@ from sidewalk._torchrl import new_tensordict_unchecked
 from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase
 from sidewalk.symmetry import check_mirror_symmetric, mirror_action, mirror_observation
 from sidewalk.views.base import WORLD, _SidewalkView
-
-
-@functools.cache
-def _warn_legacy_keys() -> None:
-    """Warn once per process that ``legacy_keys=True`` writes keys that go in the next release."""
-    warnings.warn(
-        "SelfPlayView(legacy_keys=True) also writes ('agents', 'cost') and ('agents', 'mask'), deprecated: read "
-        "('agents', 'info', 'cost') and ('agents', 'info', 'mask'); the old keys go in sidewalk 0.2, and "
-        "legacy_keys=False drops them now (and this warning)",
-        FutureWarning,
-        stacklevel=4,
-    )
 
 
 class SelfPlayView(_SidewalkView):
@@ -39,8 +26,8 @@ class SelfPlayView(_SidewalkView):
     world, ``SidewalkEnvBase.global_state``, for a centralised critic or a mixer); plus the ``"world"`` group (see the
     module docstring).
 
-    ``legacy_keys=True`` (the default until sidewalk 0.2, deprecated) also writes the earlier places of the cost and the mask,
-    ``("agents", "cost")`` and ``("agents", "mask")``, and warns once; ``False`` leaves the agents group as above.
+    ``legacy_keys=True`` (deprecated, removed in sidewalk 0.3) also writes the earlier places of the cost and the mask,
+    ``("agents", "cost")`` and ``("agents", "mask")``, and warns (``DeprecationWarning``).
 
     Each agent has its own life cycle, in TorchRL's multi-agent conventions (``docs/multiagent.md``):
 
@@ -63,13 +50,18 @@ class SelfPlayView(_SidewalkView):
     """
 
     def __init__(
-        self, env: SidewalkEnvBase, shield: bool = False, other_play: bool = False, legacy_keys: bool = True
+        self, env: SidewalkEnvBase, shield: bool = False, other_play: bool = False, legacy_keys: bool = False
     ) -> None:
         super().__init__(env, shield=shield)
         if not isinstance(legacy_keys, bool):
             raise TypeError(f"legacy_keys={legacy_keys!r} must be a bool")
         if legacy_keys:
-            _warn_legacy_keys()
+            warnings.warn(
+                "SelfPlayView(legacy_keys=True) also writes ('agents', 'cost') and ('agents', 'mask'), deprecated and "
+                "removed in sidewalk 0.3: read ('agents', 'info', 'cost') and ('agents', 'info', 'mask')",
+                DeprecationWarning,
+                stacklevel=3,  # the caller's line, past TorchRL's EnvBase metaclass __call__
+            )
         self.legacy_keys = legacy_keys
         if not isinstance(other_play, bool):
             raise TypeError(f"other_play={other_play!r} must be a bool")

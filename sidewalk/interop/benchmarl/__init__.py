@@ -84,7 +84,7 @@ class SidewalkTaskClass(TaskClass):
         self, num_envs: int, continuous_actions: bool, seed: int | None, device: Any
     ) -> Callable[[], EnvBase]:
         config = copy.deepcopy(self.config)
-        return lambda: SelfPlayView(make_core(config, num_envs, seed, device), legacy_keys=False)
+        return lambda: SelfPlayView(make_core(config, num_envs, seed, device))
 
     def supports_continuous_actions(self) -> bool:
         return self.config["domain"] == "continuous"

@@ -73,7 +73,8 @@ def presets(script: Path = SCRIPT) -> list[str]:
 def sweep(preset: str, conf_dir: Path | None = None) -> dict[str, Any]:
     """The preset's runs (each a list of overrides) and its periods, as ``runners/main.py -m`` would expand it from
     the config folder ``conf_dir`` (default: this checkout's); a revision's presets are its own."""
-    from sidewalk.reproduce import compose, sweep_points
+    from sidewalk.compose import compose
+    from sidewalk.reproduce import sweep_points
 
     cfg = compose([f"+experiment={preset}"], conf_dir)
     return {"preset": preset, "runs": sweep_points(preset, conf_dir=conf_dir), "iterations": int(cfg.iterations),
