@@ -46,7 +46,6 @@ from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 from tqdm import tqdm
 
 from sidewalk._torchrl import collector_state, restore_collector_state
-from sidewalk.algos.replicas import ReplicaSet
 from sidewalk.config import Experiment
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate, train_metrics
@@ -54,6 +53,7 @@ from sidewalk.loggers import make_logger
 from sidewalk.opponents.policy import policy_description
 from sidewalk.progress import Progress
 from sidewalk.registry import LEARNERS
+from sidewalk.replica_learners import ReplicaSet
 from sidewalk.run_folder import (
     BEST_POLICY,
     CONFIG,
