@@ -53,7 +53,7 @@ def main(cfg: DictConfig) -> float | None:
             check_partner_of(experiment)
             # One writer per folder, taken before the folder is read: a second process is refused here.
             held.enter_context(run_folder.writer_lock(run_dir))
-            from sidewalk.experiment import check_folders
+            from sidewalk.trial_state import check_folders
 
             check_folders(run_dir, experiment, config)
         except run_folder.FolderInUse as error:

@@ -31,21 +31,17 @@ import random
 import signal
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 import torch
-from omegaconf import OmegaConf
 from tensordict import TensorDictBase
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 from tqdm import tqdm
 
-from sidewalk._torchrl import collector_state, restore_collector_state
 from sidewalk.config import Experiment
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate, train_metrics
@@ -56,26 +52,29 @@ from sidewalk.registry import LEARNERS
 from sidewalk.replica_learners import ReplicaSet
 from sidewalk.run_folder import (
     BEST_POLICY,
-    CONFIG,
     GROUP_DIR,
-    METRICS,
     SUMMARY,
-    RunFolderError,
     append_history,
     atomic_write,
-    check,
     drop_training_state,
     git_revision,
-    load_checkpoint,
     package_versions,
-    record_start,
-    save_checkpoint,
     save_policy,
     strict_json,
     writer_lock,
 )
-from sidewalk.snapshot import capture_env, capture_rng, restore_env, restore_rng
+from sidewalk.snapshot import capture_rng, restore_rng
 from sidewalk.stops import LearnerDiverged, RunInterrupted, StopSignals
+from sidewalk.trial_state import (
+    Parts,
+    SeedRun,
+    record_starts,
+    replica_config,
+    replica_dir,
+    restore_trial,
+    save_trial,
+    show_progress,
+)
 from sidewalk.views import view_for_opponent
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds draw from a stream of their own, the same at every evaluation
@@ -83,7 +82,6 @@ EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds draw from a stream of their ow
 # in worlds of a stream of their own.
 ABSOLUTE_EPISODES = 10
 ABSOLUTE_SEED_OFFSET = 2_000_003
-WALL_CLOCK_COLUMNS = ("time_s", "frames_per_s")
 
 
 def make_view(experiment: Experiment, num_envs: int, seed: int, env_params: Any = None) -> EnvBase:
@@ -114,60 +112,6 @@ def collector_frames_per_batch(experiment: Experiment) -> int:
 
 
 # ---- the trial --------------------------------------------------------------------------------------------------
-
-
-def replica_dir(run_dir: Path, seed: int) -> Path:
-    """Where seed ``seed`` of a run of several seeds writes its run folder."""
-    return Path(run_dir) / f"seed{seed}"
-
-
-def replica_config(config: dict[str, Any], seed: int) -> dict[str, Any]:
-    """A seed's ``config.yaml`` in a run of several: the run's, with its own seed, as a run of that seed alone."""
-    return {**config, "seed": seed, "replicas": 1}
-
-
-def check_folders(run_dir: Path, experiment: Experiment, config: dict[str, Any]) -> None:
-    """Before any compute: every folder of the trial can start (or, ``resume=true``, continue) it; raises
-    ``RunFolderError`` naming the folder and why. Several seeds: the group's folder holds the checkpoint, and each
-    seed's folder must be new, or (resuming) one of this group's."""
-    run_dir = Path(run_dir)
-    if experiment.replicas == 1:
-        check(run_dir, config, experiment.resume)
-        return
-    check(run_dir / GROUP_DIR, config, experiment.resume)
-    for replica in range(experiment.replicas):
-        seed = experiment.seed + replica
-        folder = replica_dir(run_dir, seed)
-        if experiment.resume:
-            if not (folder / CONFIG).exists():
-                raise RunFolderError(f"resume=true but {folder} is not a run folder of this group")
-            continue
-        check(folder, replica_config(config, seed), resume=False)
-
-
-@dataclass
-class SeedRun:
-    """One seed of a trial: its run folder, the config it records, its evaluation env, logger and progress."""
-
-    experiment: Experiment  # this seed's experiment alone (replicas=1)
-    run_dir: Path
-    config: dict[str, Any]
-    eval_env: EnvBase
-    logger: Any
-    state: Progress
-
-
-@dataclass
-class Parts:
-    """What one trial is made of, built from its experiment in the order data flows through them."""
-
-    train_env: TransformedEnv
-    learners: ReplicaSet
-    collector: Collector
-    replay_buffers: list[TensorDictReplayBuffer | None]
-    runs: list[SeedRun]
-    frames_per_batch: int  # one seed's frames an iteration
-    ego: int | None  # the learner's agent in an ego view; None where it plays every agent
 
 
 class Trial:
@@ -212,7 +156,7 @@ class Trial:
             with StopSignals() as signals:
                 for batch in parts.collector:
                     rows, stop = self._iteration(parts, batch, on_evaluation)
-                    self._progress(bar, rows)
+                    show_progress(bar, rows)
                     if self._after_iteration(parts, stop, signals, bar):
                         break
             bar.close()
@@ -266,42 +210,14 @@ class Trial:
     def _start(self, parts: Parts) -> None:
         """A fresh start, or (``resume=true``) every state the checkpoint holds put back, metrics rewound to it."""
         exp = self.experiment
-        elapsed_before = 0.0
-        if exp.resume:
-            saved = load_checkpoint(self.state_dir, map_location=exp.device)
-            parts.learners.load_state_dict(saved["algorithm"])
-            for buffer, held in zip(parts.replay_buffers, _as_list(saved["replay_buffer"], len(parts.replay_buffers))):
-                if buffer is not None:
-                    buffer.load_state_dict(held)
-            restore_env(parts.train_env.base_env, saved["env"])
-            restore_collector_state(parts.collector, saved)
-            restore_rng(saved["rng"])
-            elapsed_before = saved["elapsed_s"]
-            for run, held in zip(parts.runs, saved.get("runs", [saved])):
-                run.state.rows, run.state.iteration = held["rows"], saved["iteration"]
-                run.state.load_best_state(held.get("best"))
+        elapsed_before = restore_trial(parts, self.state_dir, exp.device) if exp.resume else 0.0
         if self.config:  # from runners/main.py: the folders record the config and this start
-            self._record_start(parts)
+            record_starts(self.run_dir, self.config, parts.runs, self.experiment.resume)
         started = time.perf_counter() - elapsed_before
         for run in parts.runs:
             if exp.resume:
-                self._write_metrics(run)
+                run.write_metrics()
             run.state.started, run.state.last_write = started, time.perf_counter()
-
-    def _record_start(self, parts: Parts) -> None:
-        """Each folder's ``config.yaml`` and its start in ``history.jsonl``; with several seeds, the group's too."""
-        resume = self.experiment.resume
-        if len(parts.runs) == 1:
-            record_start(self.run_dir, self.config, resume)
-            return
-        record_start(self.state_dir, self.config, resume)
-        for run in parts.runs:
-            if resume:  # the group's own check refused any change but a longer run
-                atomic_write(run.run_dir / CONFIG, lambda tmp, run=run: OmegaConf.save(OmegaConf.create(run.config), tmp))
-                append_history(run.run_dir, "resumed", group=str(self.run_dir))
-            else:
-                record_start(run.run_dir, run.config, resume=False)
-                append_history(run.run_dir, "group", folder=str(self.run_dir), seeds=self.seeds)
 
     def _iteration(
         self, parts: Parts, batch: TensorDictBase,
@@ -364,8 +280,8 @@ class Trial:
         if diverged is None:
             return
         run = parts.runs[replica]
-        self._write_metrics(run)
-        self._history(run, "diverged", iteration=run.state.iteration + 1, non_finite=diverged)
+        run.write_metrics()
+        run.history("diverged", iteration=run.state.iteration + 1, non_finite=diverged)
         raise LearnerDiverged(
             f"the learner diverged at iteration {run.state.iteration + 1}: non-finite {diverged}. The run stopped; "
             f"{run.run_dir} keeps its last checkpoint and metrics up to iteration {run.state.iteration} "
@@ -380,7 +296,7 @@ class Trial:
             self._checkpoint(parts)
         if metrics:
             for run in parts.runs:
-                self._write_metrics(run)
+                run.write_metrics()
                 run.state.last_write = time.perf_counter()
         if interrupted:
             bar.close()
@@ -389,30 +305,14 @@ class Trial:
             if len(parts.runs) > 1 and self.config:
                 append_history(self.state_dir, "interrupted", **stopped)
             for run in parts.runs:
-                self._history(run, "interrupted", **stopped)
+                run.history("interrupted", **stopped)
             raise RunInterrupted(signals.received, state.iteration, self.run_dir)
         return done
 
     def _checkpoint(self, parts: Parts) -> None:
         """One file for every seed (they share one env and one collector), then each seed's ``policy.pt``, so a
         partner can play the run while it trains."""
-        first = parts.runs[0].state
-        buffers = [buffer.state_dict() if buffer is not None else None for buffer in parts.replay_buffers]
-        saved = {
-            "iteration": first.iteration,
-            "elapsed_s": first.elapsed(),
-            "algorithm": parts.learners.state_dict(),
-            "replay_buffer": buffers[0] if len(buffers) == 1 else buffers,
-            "env": capture_env(parts.train_env.base_env),
-            **collector_state(parts.collector),
-            "rng": capture_rng(),
-        }
-        seeds = [{"rows": run.state.rows, "best": run.state.best_state()} for run in parts.runs]
-        if len(parts.runs) == 1:
-            saved.update(seeds[0])
-        else:
-            saved.update(runs=seeds, seeds=self.seeds)
-        save_checkpoint(self.state_dir, saved)
+        save_trial(parts, self.state_dir)
         for replica, run in enumerate(parts.runs):
             save_policy(run.run_dir, self._policy_state(parts, replica))
 
@@ -427,7 +327,7 @@ class Trial:
         for replica, run in enumerate(parts.runs):
             with parts.learners.use(replica):
                 summaries.append(self._conclude(parts, replica, revision))
-            self._history(run, "finished", iteration=run.state.iteration)
+            run.history("finished", iteration=run.state.iteration)
         if exp.keep_checkpoint == "final":  # the replay buffer and optimiser state are gigabytes over a sweep
             drop_training_state(self.state_dir)
         if len(parts.runs) > 1 and self.config:
@@ -486,32 +386,3 @@ class Trial:
         """``policy.pt``: the networks and the description of the world they learned in, all a partner needs."""
         description = policy_description(parts.runs[replica].experiment)
         return {**parts.learners.policy_state(replica), "description": description}
-
-    @staticmethod
-    def _history(run: SeedRun, event: str, **details: Any) -> None:
-        if run.config:
-            append_history(run.run_dir, event, **details)
-
-    @staticmethod
-    def _write_metrics(run: SeedRun) -> None:
-        frame = pd.DataFrame(run.state.rows)
-        first = [c for c in ("iteration", "frames", *WALL_CLOCK_COLUMNS) if c in frame.columns]
-        frame = frame[first + sorted(c for c in frame.columns if c not in first)]
-        atomic_write(run.run_dir / METRICS, lambda tmp: frame.to_csv(tmp, index=False))
-
-    @staticmethod
-    def _progress(bar: tqdm, rows: list[dict[str, float]]) -> None:
-        postfix: dict[str, Any] = {"frames": int(sum(row["frames"] for row in rows))}
-        for key, label in (
-            ("train/ego_success_rate", "train_success"), ("train/team_success_rate", "team_success"),
-            ("train/return", "return"), ("eval/ego/success_rate", "eval_success"),
-        ):
-            values = [row[key] for row in rows if key in row]
-            if values and not (key == "train/team_success_rate" and "train_success" in postfix):
-                postfix[label] = f"{sum(values) / len(values):.2f}"
-        bar.set_postfix(postfix, refresh=False)
-        bar.update(1)
-
-
-def _as_list(value: Any, count: int) -> list[Any]:
-    return value if count > 1 else [value]

@@ -22,13 +22,14 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from sidewalk.algos.replicas import replica_state
 from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
-from sidewalk.experiment import Trial, replica_dir
+from sidewalk.experiment import Trial
 from sidewalk.registry import LEARNERS
 from sidewalk.report.document import write_report
 from sidewalk.report.runs import find_run_folders, load_run
 from sidewalk.report.tables import Settings
 from sidewalk.run_folder import GROUP_DIR, read_torch_file
 from sidewalk.schema import register_schemas
+from sidewalk.trial_state import replica_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 WALL_CLOCK = ["time_s", "frames_per_s"]

@@ -251,8 +251,9 @@ def trial(run_dir: Path, *overrides: str) -> pd.DataFrame:
     from omegaconf import OmegaConf
 
     from sidewalk.config import validate
-    from sidewalk.experiment import WALL_CLOCK_COLUMNS, Trial
+    from sidewalk.experiment import Trial
     from sidewalk.schema import register_schemas
+    from sidewalk.trial_state import WALL_CLOCK_COLUMNS
 
     register_schemas()
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):

@@ -8,14 +8,15 @@ same R runs one after another, each ``runners/main.py`` end to end, on this mach
 Each setup is a default run (``env=continuous`` with its TRPO and PRM agent; the grid's DQN against Dijkstra) at
 ``--iterations`` iterations (the default runs' own budgets with ``--full``), evaluated at the end. Printed per setup:
 the group's and the one-after-another wall-clock and their ratio, and each replica's final success beside its lone
-run's (a replica is the run it would be alone, so the two agree; ``within spread`` says whether each replica's
-success lies within the lone runs' range).
+run's (a replica is a statistically equivalent run of its seed, not the same run: ``within spread`` says whether each
+replica's success lies within the lone runs' range).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import subprocess
 import sys
 import tempfile
@@ -24,7 +25,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
+
 from sidewalk.bench.common import REPO_ROOT, format_table
+from sidewalk.stats import difference_interval, separation_text
 
 SETUPS = {"trpo": ["env=continuous"], "dqn": []}
 SUCCESS = "ego/success_rate"
@@ -44,6 +48,19 @@ def _success(run_dir: Path) -> float:
     return float(json.loads((run_dir / "summary.json").read_text())[SUCCESS])
 
 
+def _frames_to(run_dir: Path, level: float = 0.9) -> float:
+    """The frames of the first evaluation whose ego success reaches ``level``; NaN if none did."""
+    metrics = pd.read_csv(run_dir / "metrics.csv")
+    reached = metrics[metrics.get(f"eval/{SUCCESS}", pd.Series(dtype=float)) >= level]
+    return float(reached["frames"].iloc[0]) if len(reached) else math.nan
+
+
+def _compared(group: list[float], lone: list[float]) -> str:
+    """The group's mean minus the lone runs', its 95 % interval, and whether it separates."""
+    interval = difference_interval(group, lone)
+    return f"{interval.point:+.3g} [{interval.low:+.3g}, {interval.high:+.3g}], {separation_text(interval, 0.0)}"
+
+
 def time_setup(name: str, replicas: int, iterations: int | None, tmp: Path) -> dict[str, Any]:
     """One setup: the group of ``replicas`` seeds, then the same seeds one after another."""
     budget = [] if iterations is None else [f"iterations={iterations}", f"eval_every={iterations}"]
@@ -55,13 +72,18 @@ def time_setup(name: str, replicas: int, iterations: int | None, tmp: Path) -> d
         print(f"groups: {name}, seed {seed} alone ...", file=sys.stderr, flush=True)
         lone_s += _main_py([*overrides, f"seed={seed}"], tmp / f"{name}-seed{seed}")
         lone_success.append(_success(tmp / f"{name}-seed{seed}"))
-    group_success = [_success(tmp / f"{name}-group" / f"seed{seed}") for seed in range(replicas)]
+    group_dirs = [tmp / f"{name}-group" / f"seed{seed}" for seed in range(replicas)]
+    group_success = [_success(folder) for folder in group_dirs]
+    group_frames = [_frames_to(folder) for folder in group_dirs]
+    lone_frames = [_frames_to(tmp / f"{name}-seed{seed}") for seed in range(replicas)]
     low, high = min(lone_success), max(lone_success)
     return {"setup": name, "seeds": replicas, "iterations": iterations or "default",
             "group s": group_s, "one after another s": lone_s, "group ÷ one after another": group_s / lone_s,
             "group success": " ".join(f"{value:.2f}" for value in group_success),
             "lone success": " ".join(f"{value:.2f}" for value in lone_success),
-            "within spread": all(low <= value <= high for value in group_success)}
+            "within spread": all(low <= value <= high for value in group_success),
+            "success, group − lone": _compared(group_success, lone_success),
+            "frames to 0.9, group − lone": _compared(group_frames, lone_frames)}
 
 
 def run(setups: Sequence[str] = tuple(SETUPS), replicas: int = 5, iterations: int | None = 40,

@@ -50,10 +50,10 @@ PROBES: tuple[tuple[str, str], ...] = (
     ("gradient clip", "torch.nn.utils:clip_grad_norm_"),
     ("optimizer step", "torch.optim:Adam.step"),
     ("target update", "torchrl.objectives.utils:TargetNetUpdater.step"),
-    ("divergence check", "sidewalk.experiment:divergence"),
+    ("divergence check", "sidewalk.replica_learners:divergence"),
     ("evaluation", "sidewalk.experiment:evaluate"),
     ("checkpoint writes", "torch:save"),
-    ("metrics.csv + logger", "sidewalk.experiment:Trial._write_metrics"),
+    ("metrics.csv + logger", "sidewalk.trial_state:SeedRun.write_metrics"),
     ("metrics.csv + logger", "torchrl.record.loggers.csv:CSVLogger.log_scalar"),
 )
 OUTER = "trial"

@@ -394,7 +394,7 @@ def sb3_time_to_target(
     from stable_baselines3.common.callbacks import BaseCallback
 
     from sidewalk.evaluate import evaluate
-    from sidewalk.experiment import capture_rng, restore_rng
+    from sidewalk.snapshot import capture_rng, restore_rng
 
     settings = sb3_settings(num_envs, overrides)
     eval_env, eval_seed = _eval_view(seed)
