@@ -128,6 +128,7 @@ class Trial:
         self.config = config or {}
         self.seeds = [experiment.seed + replica for replica in range(experiment.replicas)]
         self.state_dir = self.run_dir if len(self.seeds) == 1 else self.run_dir / GROUP_DIR
+        self.seed_dirs = [self.run_dir] if len(self.seeds) == 1 else [replica_dir(self.run_dir, s) for s in self.seeds]
 
     def run(
         self,
@@ -164,9 +165,7 @@ class Trial:
             return summaries[0] if len(summaries) == 1 else summaries
 
     def _folders(self) -> list[Path]:
-        if len(self.seeds) == 1:
-            return [self.run_dir]
-        return [self.state_dir, *(replica_dir(self.run_dir, seed) for seed in self.seeds)]
+        return list(dict.fromkeys([self.state_dir, *self.seed_dirs]))  # one seed: its folder holds the state too
 
     def _seed(self) -> None:
         exp = self.experiment
@@ -181,9 +180,8 @@ class Trial:
         train_env = TransformedEnv(make_view(exp, count * exp.num_envs, self.seeds if count > 1 else exp.seed),
                                    RewardSum())
         runs = []  # evaluation envs before the learner, as a lone run has always drawn them
-        for seed in self.seeds:
+        for seed, run_dir in zip(self.seeds, self.seed_dirs):
             alone = dataclasses.replace(exp, seed=seed, replicas=1)
-            run_dir = self.run_dir if count == 1 else replica_dir(self.run_dir, seed)
             config = (self.config if count == 1 else replica_config(self.config, seed)) if self.config else {}
             runs.append(SeedRun(alone, run_dir, config, make_eval_view(alone), None, Progress()))
         learners = ReplicaSet(LEARNERS[exp.algo.name], exp.algo, train_env, exp.device, self.seeds)

@@ -1,4 +1,4 @@
-"""One global random stream per replica, for several seeds trained in one process (``sidewalk.algos.replicas``).
+"""One global random stream per replica, for several seeds trained in one process (``sidewalk.replica_learners``).
 
 Network initialisation, action sampling, ε-greedy exploration, replay sampling and minibatch permutations draw from
 torch's (and NumPy's and Python's) global generators. A replica's draws must not depend on which other replicas

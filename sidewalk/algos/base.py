@@ -109,7 +109,7 @@ class Algorithm(abc.ABC):
 
     def frames_in(self, batch: TensorDictBase) -> int:
         """The frames of one replica's share of ``batch`` (all of it for a lone learner)."""
-        return batch[(0,) * len(self.lead)].numel() if self.lead else batch.numel()
+        return batch.numel() // (self.replicas or 1)
 
     def _check_replicas(self, replicas: int | None) -> int | None:
         if replicas is not None and not self.replicable:

@@ -196,7 +196,7 @@ def on_policy_networks(
         out_layer.bias.zero_()
     if isinstance(action_spec, Bounded):
         scale = AddStateIndependentNormalScale(n_out, scale_mapping="exp")
-        policy_net.append(replicate_(nn.Sequential(scale), replicas)[0] if replicas else scale)
+        policy_net.append(replicate_(scale, replicas) if replicas else scale)
     module = TensorDictModule(policy_net, in_keys=["observation"], out_keys=dist_keys)
     actor = ProbabilisticActor(module, in_keys=dist_keys, out_keys=["action"], spec=action_spec, **dist)
     return actor, ValueOperator(value_net, in_keys=["observation"]), norm

@@ -1,10 +1,11 @@
 """R copies of a learner's networks trained as one: the replica axis, for ``replicas=R`` (several seeds in one run).
 
 A replicated network is the lone network with every parameter and buffer stacked on a leading replica axis, under
-the lone network's own names: ``replicate_(network, R)`` swaps each parameter-holding leaf (a linear or conv layer,
-a state-independent scale) for a ``ReplicatedLeaf``, whose forward maps the leaf over the replica axis
-(``torch.func.functional_call`` under ``torch.vmap``, TorchRL's ensemble pattern at the layer). Everything between the
-leaves (activations, flattening, TorchRL's actors, distributions and value estimators) is shape-agnostic, so a
+the lone network's own names: ``replicate_(network, R)`` gives each unit (TorchRL's MLP and conv stack, a linear or
+conv layer, a state-independent scale) a class whose forward maps the lone unit over the replica axis
+(``torch.func.functional_call`` of it, under ``torch.vmap`` on an accelerator, over each replica's slice on a CPU).
+Everything between the units (activations, flattening, TorchRL's actors, distributions and value estimators) is
+shape-agnostic, so a
 learner's update is written once for data with an optional leading replica axis: ``lead`` is ``()`` for a lone
 learner and ``(R,)`` for R replicas, and its reductions run over the sample axes only (``sample_mean``). Replicas
 draw from one global stream: a replica is statistically its lone run, not bit for bit.
@@ -41,8 +42,8 @@ class _Replicated:
         state.update(self.named_buffers())
         if next(iter(state.values())).device.type != "cpu":
             return torch.vmap(self._one_replica, randomness="different")(state, inputs)
-        # On a CPU each replica's slice runs as a lone layer does: vmap's batched kernels were 1.5-2x slower than R
-        # lone calls here for our convolutions and for MLPs on 2048 samples (python -m sidewalk.bench.replicas).
+        # On a CPU each replica's slice runs as a lone unit does: vmap's batched kernels were 1.2-1.6x slower than a
+        # loop here for our conv stack and for MLPs on 2048 samples (docs/guide/benchmarks.md, "Many seeds").
         outputs = [
             self._one_replica({name: tensor[r] for name, tensor in state.items()}, tuple(x[r] for x in inputs))
             for r in range(self.replicas)

@@ -38,6 +38,7 @@ from sidewalk.algos.base import AlgoConfig, Algorithm, FixedExplorationPolicy
 from sidewalk.algos.networks import on_policy_networks
 from sidewalk.algos.replicas import (
     assign_flat_,
+    broadcast_lead,
     clip_grad_norm_,
     flat_vector,
     logged,
@@ -303,6 +304,7 @@ def _line_search(
     fraction_taken = torch.zeros(lead, dtype=torch.float64, device=movable.device)
     logs = {key: torch.zeros(lead, dtype=torch.float64, device=movable.device)
             for key in ("kl", "surrogate_improvement", "expected_improvement")}
+    full_expected = rowwise_dot(gradient, full_step).double()
     for attempt in range(steps):
         fraction = shrink**attempt
         taken = torch.where(accepted, fraction_taken, torch.full_like(fraction_taken, fraction))
@@ -312,7 +314,7 @@ def _line_search(
         kl = after["kl"].double()
         good = torch.isfinite(improvement) & torch.isfinite(kl) & (kl <= max_kl) & (improvement > 0)
         new = good & movable & ~accepted
-        expected = fraction * rowwise_dot(gradient, full_step).double()
+        expected = fraction * full_expected
         for key, value in (("kl", kl), ("surrogate_improvement", improvement), ("expected_improvement", expected)):
             logs[key] = torch.where(new, value, logs[key])
         fraction_taken = torch.where(new, torch.full_like(fraction_taken, fraction), fraction_taken)
@@ -374,9 +376,8 @@ class TRPO(Algorithm):
         if self.obs_norm is not None:
             self.obs_norm.update(flat.get("observation"))
         advantage = flat.get("advantage")
-        mean = sample_mean(advantage, self.lead)
-        flat.set("advantage", (advantage - mean.reshape(*mean.shape, *[1] * (advantage.dim() - mean.dim())))
-                 / (sample_std(advantage, self.lead) + 1e-8))
+        mean = broadcast_lead(sample_mean(advantage, self.lead), advantage)
+        flat.set("advantage", (advantage - mean) / (sample_std(advantage, self.lead) + 1e-8))
 
         self.loss.snapshot(flat)
         logs = trpo_step(
@@ -411,9 +412,11 @@ class TRPO(Algorithm):
                     clip_grad_norm_(self.value.parameters(), cfg.max_grad_norm, lead)
                 self.value_optimizer.step()
                 epoch_losses.append(value_loss.detach())
-        mean_loss = torch.stack(epoch_losses).double().mean(0) if lead else sum(map(float, epoch_losses)) / len(epoch_losses)
-        return {"value_loss": logged(torch.as_tensor(mean_loss), lead) if lead else mean_loss,
-                "explained_variance": logged(explained_variance, lead)}
+        if lead:
+            value_loss = torch.stack(epoch_losses).double().mean(0)
+        else:  # a float sum, as the lone learner has always logged it
+            value_loss = sum(map(float, epoch_losses)) / len(epoch_losses)
+        return {"value_loss": value_loss, "explained_variance": logged(explained_variance, lead)}
 
     def modules(self) -> dict[str, nn.Module]:
         # The observation statistics live in both networks (one shared RunningNorm), so both state dicts carry them.
