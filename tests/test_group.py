@@ -136,6 +136,36 @@ def test_a_replica_updates_as_its_lone_learner(name):
             assert torch.equal(changed["modules"][module][key], value), f"{name}: {module}.{key}"
 
 
+@pytest.mark.parametrize("unit", ["conv", "mlp"])
+def test_the_accelerator_map_equals_the_cpu_loop(unit):
+    """A replicated unit's vmap forward (the path taken on an accelerator, which no CI machine here has) gives the
+    loop's outputs and gradients, replica by replica, and replica r is the lone unit holding its slice."""
+    from torch import nn
+    from torchrl.modules import MLP, ConvNet
+
+    from sidewalk.algos.networks import PAPER_CONV
+    from sidewalk.algos.replicas import replicate_
+
+    torch.manual_seed(0)
+    if unit == "conv":
+        build, x = (lambda: ConvNet(in_features=1, activation_class=nn.ReLU, **PAPER_CONV)), torch.rand(3, 4, 1, 14, 30)
+    else:
+        build, x = (lambda: MLP(in_features=6, out_features=2, num_cells=[8, 8])), torch.randn(3, 5, 6)
+    network = replicate_(build(), 3)
+    gradients = {}
+    for way in ("forward_vmapped", "forward_looped"):
+        network.zero_grad()
+        output = getattr(network, way)(x)
+        output.square().sum().backward()
+        gradients[way] = (output.detach(), [p.grad.clone() for p in network.parameters()])
+    torch.testing.assert_close(gradients["forward_vmapped"][0], gradients["forward_looped"][0])
+    for vmapped, looped in zip(gradients["forward_vmapped"][1], gradients["forward_looped"][1]):
+        torch.testing.assert_close(vmapped, looped)
+    lone = build()
+    lone.load_state_dict({name: value[2] for name, value in network.state_dict().items()})
+    torch.testing.assert_close(lone(x[2]), gradients["forward_looped"][0][2])
+
+
 def main_py(*overrides: str, timeout: float = 600, check: bool = True) -> subprocess.CompletedProcess:
     result = subprocess.run([sys.executable, "runners/main.py", *overrides], cwd=ROOT, capture_output=True,
                             text=True, timeout=timeout, check=False)  # the caller decides what a failure means

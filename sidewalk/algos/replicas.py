@@ -38,17 +38,29 @@ class _Replicated:
     """What a replicated unit's class adds to the unit's own: a forward mapped over the replica axis."""
 
     def forward(self, *inputs: torch.Tensor) -> Any:
-        state = dict(self.named_parameters())
-        state.update(self.named_buffers())
-        if next(iter(state.values())).device.type != "cpu":
-            return torch.vmap(self._one_replica, randomness="different")(state, inputs)
-        # On a CPU each replica's slice runs as a lone unit does: vmap's batched kernels were 1.2-1.6x slower than a
-        # loop here for our conv stack and for MLPs on 2048 samples (docs/guide/benchmarks.md, "Many seeds").
+        # On a CPU each replica's slice runs as a lone unit does: vmap's batched kernels were slower than a loop here
+        # for our conv stack and for MLPs on 2048 samples (``python -m sidewalk.bench.replicas --units``).
+        if next(self.parameters()).device.type != "cpu":
+            return self.forward_vmapped(*inputs)
+        return self.forward_looped(*inputs)
+
+    def forward_vmapped(self, *inputs: torch.Tensor) -> Any:
+        """The forward under ``torch.vmap`` over the replica axis."""
+        return torch.vmap(self._one_replica, randomness="different")(self._replica_state(), inputs)
+
+    def forward_looped(self, *inputs: torch.Tensor) -> Any:
+        """The forward of each replica's slice in turn, stacked."""
+        state = self._replica_state()
         outputs = [
             self._one_replica({name: tensor[r] for name, tensor in state.items()}, tuple(x[r] for x in inputs))
             for r in range(self.replicas)
         ]
         return torch.stack(outputs) if isinstance(outputs[0], torch.Tensor) else tuple(map(torch.stack, zip(*outputs)))
+
+    def _replica_state(self) -> dict[str, torch.Tensor]:
+        state = dict(self.named_parameters())
+        state.update(self.named_buffers())
+        return state
 
     def _one_replica(self, state: dict[str, torch.Tensor], inputs: tuple[torch.Tensor, ...]) -> Any:
         return functional_call(self.__dict__["replica_template"], state, inputs)

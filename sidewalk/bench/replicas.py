@@ -7,8 +7,13 @@ Each replica is the learner at its defaults on the continuous sidewalk's ego vie
 128 worlds for TRPO and PPO). Both ways update on the same batches, each iteration's time the median of ``repeats``
 after one untimed warm-up iteration (the first creates Adam's state).
 
+With ``--units`` it times instead the replicated units themselves, the choice ``replicate_`` makes per device:
+the paper's conv stack on grid ego images and a 2x32 tanh MLP on the continuous ego observation, forward and
+forward+backward, mapped with ``torch.vmap``, looped over the replicas' slices (the CPU path), and as R lone units.
+
     python -m sidewalk.bench.replicas                       # TRPO and PPO, R = 5
     python -m sidewalk.bench.replicas --replicas 3 --learners trpo --repeats 5
+    python -m sidewalk.bench.replicas --units --repeats 20  # vmap against the loop, per unit
 """
 
 from __future__ import annotations
@@ -21,12 +26,16 @@ from typing import Any
 
 import torch
 from tensordict import TensorDictBase
+from torch import nn
 from torchrl.collectors import Collector
 from torchrl.envs import EnvBase
+from torchrl.modules import MLP, ConvNet
 
 from sidewalk.algos.base import Algorithm
+from sidewalk.algos.networks import PAPER_CONV
+from sidewalk.algos.replicas import replicate_
 from sidewalk.bench.common import torch_threads
-from sidewalk.envs import ContinuousSidewalkEnv
+from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.registry import LEARNERS
 from sidewalk.views import make_view
 
@@ -105,12 +114,68 @@ def time_replica_updates(replicas: int = 5, repeats: int = 3, learners: Sequence
     return rows
 
 
+def _units(replicas: int) -> list[tuple[str, Callable[[], nn.Module], torch.Tensor]]:
+    """(name, a lone unit's builder, one replica's input) for each timed unit."""
+    image_shape = make_view("ego", DiscreteSidewalkEnv(num_envs=1), opponent="random").observation_spec[
+        "observation"].shape[-3:]
+    vector_size = make_view("ego", ContinuousSidewalkEnv(num_envs=1), opponent="random").observation_spec[
+        "observation"].shape[-1]
+
+    def conv() -> nn.Module:
+        return ConvNet(in_features=image_shape[0], activation_class=nn.ReLU, **PAPER_CONV)
+
+    def mlp() -> nn.Module:
+        return MLP(in_features=vector_size, out_features=1, num_cells=[32, 32], activation_class=nn.Tanh)
+
+    return [("conv stack, 128 grid images", conv, torch.rand(128, *image_shape)),
+            ("2x32 tanh MLP, 2048 samples", mlp, torch.randn(2048, vector_size)),
+            ("2x32 tanh MLP, 128 samples", mlp, torch.randn(128, vector_size))]
+
+
+def _unit_ms(replicated: nn.Module, lone: Sequence[nn.Module], inputs: torch.Tensor, backward: bool,
+             repeats: int) -> dict[str, float]:
+    forwards = {"vmap": lambda: replicated.forward_vmapped(inputs),
+                "loop": lambda: replicated.forward_looped(inputs),
+                "lone": lambda: torch.stack([unit(x) for unit, x in zip(lone, inputs)])}
+
+    def iteration(forward: Callable[[], torch.Tensor]) -> None:
+        output = forward()
+        if backward:
+            output.sum().backward()
+
+    with torch.set_grad_enabled(backward):
+        return {f"{way}_ms": _median_ms(lambda f=forward: iteration(f), repeats) for way, forward in forwards.items()}
+
+
+def time_units(replicas: int = 5, repeats: int = 20) -> list[dict[str, Any]]:
+    """ms of one replicated unit's forward (and forward+backward) over ``replicas`` replicas: under vmap, looped
+    over the slices, and as ``replicas`` lone units; one torch thread, medians of ``repeats``. Prints a line each."""
+    rows = []
+    with torch_threads(1):
+        for name, build, one_input in _units(replicas):
+            torch.manual_seed(0)
+            lone = [build() for _ in range(replicas)]
+            replicated = replicate_(build(), replicas)
+            inputs = one_input.expand(replicas, *one_input.shape).clone()
+            for backward in (False, True):
+                row = {"unit": name, "pass": "forward+backward" if backward else "forward", "replicas": replicas,
+                       **_unit_ms(replicated, lone, inputs, backward, repeats)}
+                rows.append(row)
+                print(f"{name}, {row['pass']}: vmap {row['vmap_ms']:.2f} ms, loop {row['loop_ms']:.2f} ms, "
+                      f"{replicas} lone units {row['lone_ms']:.2f} ms", flush=True)
+    return rows
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--replicas", type=int, default=5)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--learners", nargs="+", choices=LEARNER_NAMES, default=list(LEARNER_NAMES))
+    parser.add_argument("--units", action="store_true", help="time the replicated units (vmap, loop, lone) instead")
     args = parser.parse_args(argv)
+    if args.units:
+        time_units(args.replicas, args.repeats)
+        return
     time_replica_updates(args.replicas, args.repeats, args.learners)
 
 
