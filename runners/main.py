@@ -144,11 +144,22 @@ def one_line(error: BaseException) -> str:
     return text
 
 
+def scale_added(arguments: list[str]) -> list[str]:
+    """The command line with ``scale=NAME`` read as ``+scale=NAME`` where no preset is chosen. The presets list the
+    ``scale`` group after their own budgets, so that ``scale=quick`` overrides them; a default in the root config could
+    not (a preset added with ``+experiment=`` composes after every root default), so a plain run has no ``scale`` for
+    Hydra to override."""
+    if any(argument.lstrip("+").startswith("experiment=") for argument in arguments):
+        return arguments
+    return [f"+{argument}" if argument.startswith("scale=") else argument for argument in arguments]
+
+
 def cli() -> None:
     """``main`` with every error as one ``error:`` line (exit 2 for a config Hydra cannot compose, 1 otherwise);
     the traceback only with ``HYDRA_FULL_ERROR=1``."""
     asked_for_traceback = os.environ.get("HYDRA_FULL_ERROR") == "1"
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its multi-line report
+    sys.argv[1:] = scale_added(sys.argv[1:])
     try:
         main()
     except Exception as error:

@@ -204,10 +204,12 @@ CLI_CASES = {
 
 @pytest.fixture(scope="module")
 def cli_outcomes(tmp_path_factory):
-    """Every command of ``CLI_CASES`` (and a sweep) run once: name → (exit status,
-    stdout, stderr, run folder)."""
+    """Every command of ``CLI_CASES``, ``scale=quick`` shown with ``--cfg job`` and a sweep, each run once: name →
+    (exit status, stdout, stderr, run folder)."""
     tmp = tmp_path_factory.mktemp("cli")
     commands = {name: [*arguments, f"hydra.run.dir={tmp / name}"] for name, (arguments, *_) in CLI_CASES.items()}
+    commands["scale"] = ["scale=quick", "--cfg", "job"]
+    commands["scale_preset"] = ["+experiment=fig5_discrete", "scale=quick", "--cfg", "job"]  # the preset's group
     # A sweep whose second point is bad: refused before its first (good, short) job, so no sweep folder at all.
     commands["sweep"] = ["-m", "noise=0,-0.1", "iterations=1", "eval_every=0", "eval_episodes=1",
                          f"hydra.sweep.dir={tmp / 'sweep'}"]
@@ -230,6 +232,14 @@ def test_cli_refuses_bad_input_in_one_line_before_it_makes_a_folder(cli_outcomes
     for part in unnamed:
         assert part not in stderr, stderr
     assert not run_dir.exists(), sorted(run_dir.rglob("*"))  # Hydra had made it (its .hydra/, main.log) before
+
+
+@pytest.mark.parametrize("name", ["scale", "scale_preset"])
+def test_cli_takes_a_scale_without_plus_on_a_plain_run_and_on_a_preset(cli_outcomes, name):
+    code, stdout, stderr, _ = cli_outcomes[name]
+    assert code == 0, stderr
+    shown = OmegaConf.create(stdout)
+    assert (shown.iterations, shown.eval_every, shown.replicas) == (20, 5, 2)
 
 
 def test_a_sweep_with_a_bad_point_is_refused_before_its_first_job(cli_outcomes):
