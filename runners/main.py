@@ -83,6 +83,7 @@ def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | No
     from sidewalk.experiment import Trial
     from sidewalk.stops import LearnerDiverged, RunInterrupted
 
+    print(f"training {experiment.describe()}; run folder: {run_dir}", flush=True)  # before the progress bar
     try:
         summaries = Trial(experiment, run_dir, config).run()
     except RunInterrupted as stopped:

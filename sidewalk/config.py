@@ -77,6 +77,13 @@ class Experiment:
     other_play: bool = False  # self-play partners act through a random mirror of the game (sidewalk.symmetry)
     replicas: int = 1  # seeds seed .. seed+replicas-1 trained together in this process (sidewalk.experiment.Trial)
 
+    def describe(self) -> str:
+        """What this experiment trains, as the overrides that choose it: the world, the learner, the opponent, the noise,
+        the seeds and the budget."""
+        seeds = f"seeds={self.seed}..{self.seed + self.replicas - 1}" if self.replicas > 1 else f"seed={self.seed}"
+        return (f"env={self.domain} env.layout={self.env_params.layout} algo={self.algo.name} "
+                f"opponent={self.opponent} noise={self.env_params.noise:g} {seeds} iterations={self.iterations}")
+
     @property
     def eval_env_params(self) -> Any:
         """The env parameters of the evaluation worlds: the training env's, with the protocol's jitter bounds."""

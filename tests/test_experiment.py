@@ -47,7 +47,11 @@ def history(run_dir: Path) -> list[dict]:
 
 def test_run_folder_contents(tmp_path):
     run = tmp_path / "run"
-    main_py(*TINY, f"hydra.run.dir={run}")
+    result = main_py(*TINY, f"hydra.run.dir={run}")
+    # What trains and where, first; TorchRL's INFO line on the replay buffer's storage not inside the progress bar.
+    assert result.stdout.startswith("training env=discrete env.layout=sidewalk algo=dqn opponent=dijkstra noise=0 "
+                                    f"seed=0 iterations=12; run folder: {run}\n"), result.stdout
+    assert "Storage" not in result.stdout + result.stderr
     files = {p.name for p in run.iterdir()}
     assert {"config.yaml", "history.jsonl", "metrics.csv", "summary.json", "policy.pt"} <= files
     assert not {"checkpoint.pt", "checkpoint.prev.pt"} & files  # keep_checkpoint=final: the state is dropped
