@@ -78,8 +78,8 @@ class Experiment:
     replicas: int = 1  # seeds seed .. seed+replicas-1 trained together in this process (sidewalk.experiment.Trial)
 
     def describe(self) -> str:
-        """What this experiment trains, as the overrides that choose it: the world, the learner, the opponent, the noise,
-        the seeds and the budget."""
+        """What this experiment trains, as the overrides that choose it: the world, the learner, the opponent, the
+        noise, the seeds and the budget."""
         seeds = f"seeds={self.seed}..{self.seed + self.replicas - 1}" if self.replicas > 1 else f"seed={self.seed}"
         return (f"env={self.domain} env.layout={self.env_params.layout} algo={self.algo.name} "
                 f"opponent={self.opponent} noise={self.env_params.noise:g} {seeds} iterations={self.iterations}")

@@ -190,8 +190,8 @@ CLI_CASES = {
                     ["+env"]),
     # An opponent's settings are its constructor's keywords: a typo is named, not a TypeError.
     "opponent_param": (["opponent=convention", "+opponent.params.stlye=keep_right"], 2,
-                       ["error: unknown parameter 'stlye' (did you mean 'style'?) for opponent.params (opponent=convention)",
-                        "valid: style, lane_fraction"], ["TypeError"]),
+                       ["error: unknown parameter 'stlye' (did you mean 'style'?)",
+                        "for opponent.params (opponent=convention); valid: style, lane_fraction"], ["TypeError"]),
     # The layout is named where the user typed it, not in the room side a resolver derives from it.
     "layout": (["env.layout=dor"], 2, ["error: env.layout='dor' is not valid; valid:", "'door'", "'sidewalk'"],
                ["width_cells"]),
