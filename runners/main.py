@@ -28,10 +28,9 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from sidewalk import run_folder
-from sidewalk.config import validate
-from sidewalk.hydra_callbacks import ERROR_FILE
-from sidewalk.opponents.policy import check_partner_of
+from sidewalk import hydra_callbacks, run_folder
+from sidewalk.config import unknown_override
+from sidewalk.hydra_callbacks import ERROR_FILE, checked
 from sidewalk.paths import CONFIG_DIR
 from sidewalk.schema import register_schemas
 
@@ -49,8 +48,7 @@ def main(cfg: DictConfig) -> float | None:
     config = OmegaConf.to_container(cfg, resolve=True)
     with contextlib.ExitStack() as held:
         try:
-            experiment = validate(cfg)  # every check before any compute
-            check_partner_of(experiment)
+            experiment = checked(cfg)  # every check before any compute (a single run's passed them in CheckFirst)
             # One writer per folder, taken before the folder is read: a second process is refused here.
             held.enter_context(run_folder.writer_lock(run_dir))
             from sidewalk.trial_state import check_folders
@@ -77,8 +75,7 @@ def refuse(error: Exception, in_sweep: bool, error_file: Path) -> None:
         error_file.parent.mkdir(parents=True, exist_ok=True)
         error_file.write_text(f"invalid config or run folder: {error}\n")
         return
-    print(f"error: {error}", file=sys.stderr)
-    sys.exit(2)
+    hydra_callbacks.refuse(error)
 
 
 def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | None:
@@ -86,6 +83,7 @@ def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | No
     from sidewalk.experiment import Trial
     from sidewalk.stops import LearnerDiverged, RunInterrupted
 
+    print(f"training {experiment.describe()}; run folder: {run_dir}", flush=True)  # before the progress bar
     try:
         summaries = Trial(experiment, run_dir, config).run()
     except RunInterrupted as stopped:
@@ -133,16 +131,28 @@ def write_plots(run_dir: Path) -> None:
 
 def one_line(error: BaseException) -> str:
     """A config error as one line: Hydra's own reports span many (options one per line, the search path)."""
+    cause = error.__cause__
+    if isinstance(cause, OmegaConfBaseException) and (unknown := unknown_override(cause)):
+        return unknown  # Hydra advises adding the typo with "+"; the schema's nearest key is what was meant
     first = str(error).strip().split("\n\n")[0]
     text = " ".join(line.strip() for line in first.splitlines() if line.strip())
     if isinstance(error, MissingConfigException) and error.options:
         # The per-domain defaults (*_default, *_selfplay) are no choice of the user's.
         valid = [option for option in error.options if not option.endswith(("_default", "_selfplay"))]
         text += f"; valid: {', '.join(valid)}"
-    cause = error.__cause__
     if isinstance(cause, OmegaConfBaseException):
         text += f": {str(cause).strip().splitlines()[0]}"
     return text
+
+
+def scale_added(arguments: list[str]) -> list[str]:
+    """The command line with ``scale=NAME`` read as ``+scale=NAME`` where no preset is chosen. The presets list the
+    ``scale`` group after their own budgets, so that ``scale=quick`` overrides them; a default in the root config could
+    not (a preset added with ``+experiment=`` composes after every root default), so a plain run has no ``scale`` for
+    Hydra to override."""
+    if any(argument.lstrip("+").startswith("experiment=") for argument in arguments):
+        return arguments
+    return [f"+{argument}" if argument.startswith("scale=") else argument for argument in arguments]
 
 
 def cli() -> None:
@@ -150,6 +160,7 @@ def cli() -> None:
     the traceback only with ``HYDRA_FULL_ERROR=1``."""
     asked_for_traceback = os.environ.get("HYDRA_FULL_ERROR") == "1"
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its multi-line report
+    sys.argv[1:] = scale_added(sys.argv[1:])
     try:
         main()
     except Exception as error:

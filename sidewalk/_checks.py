@@ -59,4 +59,4 @@ def check_keys(
         for key in unknown:
             close = difflib.get_close_matches(key, valid, n=1)
             hints.append(f"{key!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
-        raise error(f"unknown {kind} {', '.join(hints)} for {owner}; valid: {', '.join(valid)}")
+        raise error(f"unknown {kind} {', '.join(hints)} for {owner}; valid: {', '.join(valid) or 'none'}")

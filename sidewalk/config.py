@@ -9,17 +9,20 @@ with a message that names it and the valid choices, which it reads from what the
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from dataclasses import dataclass
 from typing import Any
 
+import torch
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
 
 from sidewalk._checks import check_choice, check_int, check_keys, check_range
 from sidewalk.algos.base import AlgoConfig
 from sidewalk.envs.grid import DiscreteSidewalkEnv
 from sidewalk.envs.unicycle import ContinuousSidewalkEnv
 from sidewalk.later_keys import NOMINAL_EVAL
-from sidewalk.registry import LEARNERS, OPPONENTS
+from sidewalk.registry import LAYOUTS, LEARNERS, OPPONENTS
 from sidewalk.schema import (
     PROTOCOL_ENV_FIELDS,
     ContinuousEnvSchema,
@@ -74,6 +77,13 @@ class Experiment:
     other_play: bool = False  # self-play partners act through a random mirror of the game (sidewalk.symmetry)
     replicas: int = 1  # seeds seed .. seed+replicas-1 trained together in this process (sidewalk.experiment.Trial)
 
+    def describe(self) -> str:
+        """What this experiment trains, as the overrides that choose it: the world, the learner, the opponent, the
+        noise, the seeds and the budget."""
+        seeds = f"seeds={self.seed}..{self.seed + self.replicas - 1}" if self.replicas > 1 else f"seed={self.seed}"
+        return (f"env={self.domain} env.layout={self.env_params.layout} algo={self.algo.name} "
+                f"opponent={self.opponent} noise={self.env_params.noise:g} {seeds} iterations={self.iterations}")
+
     @property
     def eval_env_params(self) -> Any:
         """The env parameters of the evaluation worlds: the training env's, with the protocol's jitter bounds."""
@@ -115,6 +125,25 @@ def check_known_keys(cfg: DictConfig, algo_cls: type) -> None:
                    _field_names(schema))
 
 
+def unknown_override(error: OmegaConfBaseException) -> str | None:
+    """The message ``check_keys`` gives for a plain override of a key no schema has (``nosie=0.5``, no ``+``), from
+    the error OmegaConf raised under Hydra's (which advises adding the typo with ``+``); None for any other error and
+    for Hydra's own settings (``hydra.*``)."""
+    parent = error.parent_node
+    if not isinstance(error, (ConfigAttributeError, ConfigKeyError)) or not isinstance(parent, DictConfig):
+        return None
+    full_key, key = str(error.full_key), str(error.key)
+    group = full_key[: -len(key) - 1] if full_key.endswith(f".{key}") else ""
+    if group.split(".")[0] == "hydra" or full_key == "hydra":
+        return None
+    owner = f"{group}.*" if group else "the experiment (top level)"
+    try:
+        check_keys(owner, [key], [name for name in parent if name != "hydra"])
+    except ValueError as unknown:
+        return str(unknown)
+    return None
+
+
 def validate(cfg: DictConfig) -> Experiment:
     """Check a composed config and build the typed experiment, raising ``ValueError``/``TypeError`` that names
     the first bad value (and the valid ones) or the combination that makes no sense."""
@@ -122,6 +151,7 @@ def validate(cfg: DictConfig) -> Experiment:
     domain, opponent, algo_name = _check_pairing(cfg)
     check_choice("logger", cfg.logger.name, LOGGERS)
     check_known_keys(cfg, LEARNERS[algo_name].Config)
+    check_choice("env.layout", cfg.env.layout, LAYOUTS.names())
     # The noise means a random-action probability in the grid and a ±ε uniform noise in the continuous world.
     check_range("noise", cfg.noise, 0.0, 1.0 if domain == "discrete" else 10.0)
     env_params = env_params_of(cfg)
@@ -171,6 +201,19 @@ def _check_run_settings(cfg: DictConfig) -> None:
     check_choice("keep_checkpoint", cfg.keep_checkpoint, KEEP_CHECKPOINT)
     if not str(cfg.device).startswith(("cpu", "cuda", "mps")):
         raise ValueError(f"device={cfg.device!r} is not valid; valid: 'cpu', 'cuda', 'cuda:N', 'mps'")
+    if str(cfg.device) not in available_devices():
+        raise ValueError(f"device={cfg.device!r} is not available on this machine (torch {torch.__version__}); "
+                         f"available: {', '.join(map(repr, available_devices()))}")
+
+
+def available_devices() -> list[str]:
+    """The devices this torch build can run on here: ``cpu``, ``cuda`` and ``cuda:N`` for each GPU, ``mps``."""
+    devices = ["cpu"]
+    if torch.cuda.is_available():
+        devices += ["cuda", *(f"cuda:{index}" for index in range(torch.cuda.device_count()))]
+    if torch.backends.mps.is_available():
+        devices.append("mps")
+    return devices
 
 
 def _check_pairing(cfg: DictConfig) -> tuple[str, str, str]:
@@ -260,4 +303,24 @@ def _opponent_params(cfg: DictConfig, opponent: str) -> dict[str, Any]:
         return {"path": str(cfg.opponent.get("path", "")), "sample": bool(cfg.opponent.get("sample", False))}
     if cfg.opponent.get("path", ""):
         raise ValueError(f"opponent.path={cfg.opponent.path!r} applies only to opponent=policy, not opponent={opponent}")
-    return dict(OmegaConf.to_container(cfg.opponent.params, resolve=True))
+    params = dict(OmegaConf.to_container(cfg.opponent.params, resolve=True))
+    settings = opponent_settings(opponent)
+    if settings is not None:
+        check_keys(f"opponent.params (opponent={opponent})", params, settings, kind="parameter")
+    return params
+
+
+# What every opponent's constructor takes before its own settings (sidewalk.opponents.base.Opponent).
+OPPONENT_PLACES = ("self", "env", "controlled", "ego")
+
+
+def opponent_settings(opponent: str) -> list[str] | None:
+    """The settings ``opponent.params`` may give ``opponent``, read from its constructor: the keywords after the env,
+    the agents it plays and the ego; none for the views ``centralized`` and ``self``; None (any) for a constructor
+    that takes ``**kwargs``."""
+    if opponent not in OPPONENTS:
+        return []
+    parameters = inspect.signature(OPPONENTS[opponent].__init__).parameters.values()
+    if any(p.kind == p.VAR_KEYWORD for p in parameters):
+        return None
+    return [p.name for p in parameters if p.name not in OPPONENT_PLACES and p.kind != p.VAR_POSITIONAL]

@@ -1,16 +1,83 @@
-"""Hydra callbacks: a sweep whose jobs failed ends with a non-zero exit status, after every job has run."""
+"""Hydra callbacks: a command whose config (or any point of its sweep) fails the checks is refused before Hydra makes
+a folder or starts a job; a sweep whose jobs failed ends with a non-zero exit status, after every job has run."""
 
 from __future__ import annotations
 
 import logging
+import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
+from sidewalk.config import Experiment, validate
+from sidewalk.opponents.policy import check_partner_of
+from sidewalk.run_folder import RunFolderError
+
 ERROR_FILE = "error.txt"
+# What the checks raise for a bad config or partner folder: refused, exit status 2, nothing computed.
+REFUSED = (ValueError, TypeError, FileNotFoundError, NotADirectoryError, RunFolderError)
+BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
 log = logging.getLogger(__name__)
+
+
+def checked(cfg: DictConfig) -> Experiment:
+    """The validated experiment of ``cfg``, its learned partner's folder checked too: every check before compute."""
+    experiment = validate(cfg)
+    check_partner_of(experiment)
+    return experiment
+
+
+def refuse(message: Any) -> NoReturn:
+    """A command refused before any compute: one ``error:`` line and exit status 2."""
+    print(f"error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def sweep_points(config: DictConfig) -> list[list[str]] | None:
+    """The overrides of every job the basic sweeper will launch (its ``params`` and the command line's, as it splits
+    them); None under another sweeper, which may pick its points as it goes."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    if config.hydra.sweeper.get("_target_") != BASIC_SWEEPER:
+        return None
+    arguments = [f"{key}={value}" for key, value in (config.hydra.sweeper.get("params") or {}).items()]
+    arguments += list(config.hydra.overrides.task)
+    parser = OverridesParser.create(config_loader=GlobalHydra.instance().config_loader())
+    return BasicSweeper.split_arguments(parser.parse_overrides(arguments), max_batch_size=None)[0]
+
+
+class CheckFirst(Callback):
+    """Refuses a run whose config fails the checks before Hydra makes its folder, and a sweep with any such point
+    before its first job starts (a bad point otherwise fails only when its job starts, maybe hours in)."""
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        try:
+            checked(config)
+        except REFUSED as error:
+            refuse(error)
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        from hydra.core.global_hydra import GlobalHydra
+
+        points = sweep_points(config)
+        if points is None:
+            return
+        loader = GlobalHydra.instance().config_loader()
+        varying = [index for index in range(len(points[0])) if len({point[index] for point in points}) > 1]
+        refused = []
+        for number, point in enumerate(points):
+            try:
+                checked(loader.load_sweep_config(config, list(point)))
+            except REFUSED as error:
+                refused.append(f"job {number} ({' '.join(point[index] for index in varying) or 'its only point'}): "
+                               f"{error}")
+        if refused:
+            more = f" ({len(refused)} of the sweep's {len(points)} jobs are refused)" if len(refused) > 1 else ""
+            refuse(f"{refused[0]}{more}; no job was started")
 
 
 class SweepStatus(Callback):

@@ -166,7 +166,10 @@ def room_side(*, _parent_: Any, _node_: Any) -> float | int:
     for other in env_cls.room_sides:
         if other != side and not _parent_._get_node(other)._is_interpolation():
             given[other] = _parent_[other]
-    return env_cls.with_room(given)[side]
+    try:
+        return env_cls.with_room(given)[side]
+    except (ValueError, TypeError):  # a scenario that cannot be built (env.layout=dor): validate names what is wrong
+        return getattr(env_cls.Params(), side)
 
 
 # Self-play's progress shaping (reward.c_progress), per metre (continuous) or per grid cell (every grid view's): without

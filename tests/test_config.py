@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
@@ -155,17 +157,94 @@ def test_bad_overrides_fail_naming_the_value(overrides, named):
     assert named in message
 
 
-@pytest.mark.parametrize(
-    "override, named",
-    [("opponent=prm", "does not play env=discrete"), ("env=maze", "continuous"), ("noise=2", "noise=2"),
-     ("+nosie=0.5", "did you mean 'noise'")],
-)
-def test_cli_rejects_bad_input_before_compute(tmp_path, override, named):
-    result = subprocess.run(
-        [sys.executable, "runners/main.py", override, f"hydra.run.dir={tmp_path}/run"],
-        cwd=ROOT, capture_output=True, text=True, timeout=120, check=False,
-    )
-    assert result.returncode != 0
-    assert named in result.stderr + result.stdout
-    assert not (tmp_path / "run" / "checkpoint.pt").exists()
-    assert not (tmp_path / "run" / "config.yaml").exists()
+# One interpreter runs every command of CLI_CASES through runners/main.py's cli(), as the shell would (its argv, exit
+# status, stdout and stderr): a process per command would add seconds of imports each.
+CLI_BATCH = """
+import contextlib, io, json, os, runpy, sys
+cli = runpy.run_path("runners/main.py")["cli"]
+commands, outcomes_file, outcomes = json.loads(sys.argv[1]), sys.argv[2], []
+for arguments in commands:
+    os.environ.pop("HYDRA_FULL_ERROR", None)  # cli() sets it for Hydra; each command starts as from the shell
+    sys.argv = ["runners/main.py", *arguments]
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            cli()
+            status = 0
+        except SystemExit as stop:
+            status = stop.code
+    outcomes.append([status, out.getvalue(), err.getvalue()])
+with open(outcomes_file, "w") as file:  # not stdout: a library's log handler may hold the real one
+    json.dump(outcomes, file)
+"""
+
+# name: (arguments, exit status, what stderr must hold, what it must not); the run folder is `<tmp>/<name>`.
+CLI_CASES = {
+    "pairing": (["opponent=prm"], 2, ["does not play env=discrete"], []),
+    "unknown_env": (["env=maze"], 2, ["continuous"], []),
+    "noise_range": (["noise=2"], 2, ["noise=2"], []),
+    "typo_added": (["+nosie=0.5"], 2, ["unknown key 'nosie' (did you mean 'noise'?)"], []),
+    # Without "+", Hydra's advice was to add the typo with "+": the schema's nearest key instead.
+    "typo": (["nosie=0.5"], 2, ["error: unknown key 'nosie' (did you mean 'noise'?) for the experiment"], ["+nosie"]),
+    "typo_nested": (["env.widht_cells=3"], 2, ["unknown key 'widht_cells' (did you mean 'width_cells'?) for env.*"],
+                    ["+env"]),
+    # An opponent's settings are its constructor's keywords: a typo is named, not a TypeError.
+    "opponent_param": (["opponent=convention", "+opponent.params.stlye=keep_right"], 2,
+                       ["error: unknown parameter 'stlye' (did you mean 'style'?)",
+                        "for opponent.params (opponent=convention); valid: style, lane_fraction"], ["TypeError"]),
+    # The layout is named where the user typed it, not in the room side a resolver derives from it.
+    "layout": (["env.layout=dor"], 2, ["error: env.layout='dor' is not valid; valid:", "'door'", "'sidewalk'"],
+               ["width_cells"]),
+    # A device this torch cannot use, named with those it can (no GPU has this index anywhere).
+    "device": ([f"device=cuda:{torch.cuda.device_count()}"], 2,
+               [f"error: device='cuda:{torch.cuda.device_count()}' is not available on this machine", "'cpu'"],
+               ["AssertionError"]),
+}
+
+
+@pytest.fixture(scope="module")
+def cli_outcomes(tmp_path_factory):
+    """Every command of ``CLI_CASES``, ``scale=quick`` shown with ``--cfg job`` and a sweep, each run once: name →
+    (exit status, stdout, stderr, run folder)."""
+    tmp = tmp_path_factory.mktemp("cli")
+    commands = {name: [*arguments, f"hydra.run.dir={tmp / name}"] for name, (arguments, *_) in CLI_CASES.items()}
+    commands["scale"] = ["scale=quick", "--cfg", "job"]
+    commands["scale_preset"] = ["+experiment=fig5_discrete", "scale=quick", "--cfg", "job"]  # the preset's group
+    # A sweep whose second point is bad: refused before its first (good, short) job, so no sweep folder at all.
+    commands["sweep"] = ["-m", "noise=0,-0.1", "iterations=1", "eval_every=0", "eval_episodes=1",
+                         f"hydra.sweep.dir={tmp / 'sweep'}"]
+    outcomes_file = tmp / "outcomes.json"
+    done = subprocess.run([sys.executable, "-c", CLI_BATCH, json.dumps(list(commands.values())), str(outcomes_file)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
+    assert done.returncode == 0, done.stderr
+    outcomes = json.loads(outcomes_file.read_text())
+    return {name: (*outcome, tmp / name) for name, outcome in zip(commands, outcomes, strict=True)}
+
+
+@pytest.mark.parametrize("name", list(CLI_CASES))
+def test_cli_refuses_bad_input_in_one_line_before_it_makes_a_folder(cli_outcomes, name):
+    _, status, named, unnamed = CLI_CASES[name]
+    code, _, stderr, run_dir = cli_outcomes[name]
+    assert code == status, stderr
+    assert len(stderr.strip().splitlines()) == 1, stderr
+    for part in named:
+        assert part in stderr, stderr
+    for part in unnamed:
+        assert part not in stderr, stderr
+    assert not run_dir.exists(), sorted(run_dir.rglob("*"))  # Hydra had made it (its .hydra/, main.log) before
+
+
+@pytest.mark.parametrize("name", ["scale", "scale_preset"])
+def test_cli_takes_a_scale_without_plus_on_a_plain_run_and_on_a_preset(cli_outcomes, name):
+    code, stdout, stderr, _ = cli_outcomes[name]
+    assert code == 0, stderr
+    shown = OmegaConf.create(stdout)
+    assert (shown.iterations, shown.eval_every, shown.replicas) == (20, 5, 2)
+
+
+def test_a_sweep_with_a_bad_point_is_refused_before_its_first_job(cli_outcomes):
+    code, _, stderr, sweep_dir = cli_outcomes["sweep"]
+    assert code == 2, stderr
+    assert "error: job 1 (noise=-0.1): noise=-0.1 is out of range; valid: [0.0, 1.0]; no job was started" in stderr
+    assert not sweep_dir.exists()
+

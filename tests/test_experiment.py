@@ -47,7 +47,11 @@ def history(run_dir: Path) -> list[dict]:
 
 def test_run_folder_contents(tmp_path):
     run = tmp_path / "run"
-    main_py(*TINY, f"hydra.run.dir={run}")
+    result = main_py(*TINY, f"hydra.run.dir={run}")
+    # What trains and where, first; TorchRL's INFO line on the replay buffer's storage not inside the progress bar.
+    assert result.stdout.startswith("training env=discrete env.layout=sidewalk algo=dqn opponent=dijkstra noise=0 "
+                                    f"seed=0 iterations=12; run folder: {run}\n"), result.stdout
+    assert "Storage" not in result.stdout + result.stderr
     files = {p.name for p in run.iterdir()}
     assert {"config.yaml", "history.jsonl", "metrics.csv", "summary.json", "policy.pt"} <= files
     assert not {"checkpoint.pt", "checkpoint.prev.pt"} & files  # keep_checkpoint=final: the state is dropped
@@ -214,14 +218,15 @@ def test_resume_without_checkpoint_is_an_error(tmp_path):
 def test_a_failing_sweep_job_leaves_the_others_intact(tmp_path, launcher):
     sweep = tmp_path / "sweep"
     extra = ["hydra/launcher=joblib", "hydra.launcher.n_jobs=2"] if launcher == "joblib" else []
-    # The second job's noise is out of range for the grid: it fails, the first completes.
-    result = main_py("-m", *TINY, "noise=0.0,1.5", f"hydra.sweep.dir={sweep}", *extra, check=False)
+    # The second job's learner diverges at its first update (a valid config: only running it finds out): it fails,
+    # the first completes. A config the checks refuse stops the sweep before any job (test_config.py).
+    result = main_py("-m", *TINY, "reward.c_step=-0.01,-1e38", f"hydra.sweep.dir={sweep}", *extra, check=False)
     assert result.returncode != 0
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir() and not p.name.startswith("."))
     assert len(jobs) == 2
-    good, bad = (jobs[0], jobs[1]) if "0.0" in jobs[0].name else (jobs[1], jobs[0])
+    good, bad = (jobs[0], jobs[1]) if jobs[0].name.startswith("0_") else (jobs[1], jobs[0])
     assert json.loads((good / "summary.json").read_text())["seed"] == 0
-    assert "noise=1.5" in (bad / "error.txt").read_text()
+    assert "LearnerDiverged: the learner diverged at iteration 1" in (bad / "error.txt").read_text()
     assert not (bad / "summary.json").exists()
 
 

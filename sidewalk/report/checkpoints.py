@@ -4,7 +4,6 @@ functions, so a report that replays no checkpoint does not load them."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +24,9 @@ def load_experiment(run_dir: str | Path, device: str = "cpu"):
     from sidewalk.config import validate
     from sidewalk.run_folder import read_saved_config
 
-    return dataclasses.replace(validate(read_saved_config(run_dir)), device=device)
+    cfg = read_saved_config(run_dir)
+    cfg.device = device  # before the checks, which refuse a device this machine lacks (a GPU run read on a CPU)
+    return validate(cfg)
 
 
 def load_policy(run_dir: str | Path, experiment, env):
