@@ -44,6 +44,7 @@ from torchrl.envs import EnvBase
 
 from sidewalk._checks import check_int, replace_checked
 from sidewalk._torchrl import new_tensordict_unchecked
+from sidewalk.envs.actions import ActionCheck
 from sidewalk.envs.rewards import RewardParams, compose_reward
 
 AGENT_GROUP = "agents"
@@ -138,6 +139,7 @@ class SidewalkEnvBase(EnvBase):
     """
 
     Params: ClassVar[type]
+    ACTION_LABELS: ClassVar[tuple[str, ...]] = ()  # the names of a discrete action's values, for error messages
     # The name in RewardParams of the weight of the domain's shaping term; None: the domain weighs its terms itself.
     shaping_weight_name: ClassVar[str | None]
 
@@ -252,6 +254,10 @@ class SidewalkEnvBase(EnvBase):
             shape=batch,
             device=self.device,
         )
+        # The grid's actions are indices, always checked; a continuous one's finiteness is the check_actions switch.
+        self._check_action = ActionCheck(action_spec, (AGENT_GROUP, "action"), type(self).__name__,
+                                         labels=self.ACTION_LABELS,
+                                         check_finite=getattr(self.params, "check_actions", True))
         self.reward_spec = Composite(
             {
                 AGENT_GROUP: Composite(
@@ -323,10 +329,10 @@ class SidewalkEnvBase(EnvBase):
         return torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get((AGENT_GROUP, "action"), None)
+        self._check_action(action, tensordict)
         active = self._active
-        reached_now, hit_wall_now, hit_agent_now, shaping_term = self._advance(
-            tensordict.get((AGENT_GROUP, "action")), active
-        )
+        reached_now, hit_wall_now, hit_agent_now, shaping_term = self._advance(action, active)
         collided_now = hit_wall_now | hit_agent_now
         status = self._status
         status["reached_goal"] = status["reached_goal"] | reached_now
