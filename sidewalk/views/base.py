@@ -11,7 +11,7 @@ from torchrl.envs import EnvBase
 
 from sidewalk._torchrl import new_tensordict_unchecked
 from sidewalk.envs.actions import ActionCheck
-from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase, swap_in_reset
+from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase, spec_lines, swap_in_reset
 from sidewalk.opponents.base import env_domain
 
 WORLD = "world"
@@ -188,6 +188,10 @@ class _SidewalkView(EnvBase):
             },
             batch_size=self._agents_shape,
         )
+
+    def extra_repr(self) -> str:
+        # The view's own specs; nn.Module's repr adds its core env and opponent below them.
+        return "\n".join([f"shield={self.shield}", *spec_lines(self)])
 
     def render(self, env_index: int = 0, **kwargs: Any):
         """The core's RGB rendering of world ``env_index`` (see the core env's ``render``; ``mode="rgb_array"``)."""
