@@ -291,16 +291,14 @@ class SidewalkGymEnv(gymnasium.Env):
         if seed is not None:
             self.view.set_seed(seed)
         out = self.view._reset(None)
-        if self._window is not None:
-            self._window.show(self.view.render(0))
+        self._show()
         return self._observation(out), self._single_info(out)
 
     def step(self, action: Any):
         checked = checked_action(action, self.action_space)
         action = torch.as_tensor(checked, dtype=self._action_dtype, device=self.view.device)
         out = self.view._step(TensorDict({"action": action.reshape(self._action_shape)}, batch_size=[1]))
-        if self._window is not None:
-            self._window.show(self.view.render(0))
+        self._show()
         return (
             self._observation(out),
             float(out.get("reward")[0, 0]),
@@ -332,9 +330,14 @@ class SidewalkGymEnv(gymnasium.Env):
             )
             return None
         if self._window is not None:
-            self._window.show(self.view.render(0))
+            self._show()
             return None
         return self.view.render(0)
+
+    def _show(self) -> None:
+        """``render_mode="human"``: the world in the window (not drawn at all where no window opens)."""
+        if self._window is not None and self._window.opens:
+            self._window.show(self.view.render(0))
 
     def close(self) -> None:
         """Close the window of ``render_mode="human"``; the world itself lives in tensors."""

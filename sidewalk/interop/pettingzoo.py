@@ -96,8 +96,7 @@ class SidewalkParallelEnv(ParallelEnv):
             self.core.set_seed(seed)
         self._last = out = self.core._reset(None)
         self.agents = list(self.possible_agents)
-        if self._window is not None:
-            self._window.show(self.core.render(0))
+        self._show()
         agents = out.get(AGENT_GROUP)
         return self._per_agent_observations(agents, self.agents), self._per_agent_infos(agents, self.agents)
 
@@ -121,8 +120,7 @@ class SidewalkParallelEnv(ParallelEnv):
             {AGENT_GROUP: TensorDict({"action": joint}, batch_size=self._action_shape[:2])}, [1]
         )
         self._last = out = self.core._step(core_in)
-        if self._window is not None:
-            self._window.show(self.core.render(0))
+        self._show()
         agents = out.get(AGENT_GROUP)
         reward = agents.get("reward")[0, :, 0].tolist()
         terminated = agents.get("terminated")[0, :, 0].tolist()
@@ -167,9 +165,14 @@ class SidewalkParallelEnv(ParallelEnv):
             )
             return None
         if self._window is not None:
-            self._window.show(self.core.render(0))
+            self._show()
             return None
         return self.core.render(0)
+
+    def _show(self) -> None:
+        """``render_mode="human"``: the world in the window (not drawn at all where no window opens)."""
+        if self._window is not None and self._window.opens:
+            self._window.show(self.core.render(0))
 
     def close(self) -> None:
         """Close the window of ``render_mode="human"``; the world itself lives in tensors."""

@@ -1,20 +1,23 @@
 """The window of the faces' ``render_mode="human"``: the env's RGB frames shown as they come, through matplotlib's
 interactive backend (matplotlib is a dependency; pygame, which gymnasium's own ``HumanRendering`` needs, is not).
 
-Where no window can open (no display, or no GUI toolkit for matplotlib), building one raises ``NoWindowError``
-saying why and what to do, before any step runs.
+Where no window can open (no display, or no GUI toolkit for matplotlib), building one warns once
+(``NoWindowWarning``) saying why and what to do, and the env runs without one: a script, or Gymnasium's
+``check_env`` (which builds the env in every render mode it advertises), still runs on a headless machine.
 """
 
 from __future__ import annotations
 
 import os
 import sys
+import warnings
 
 import numpy as np
 
 
-class NoWindowError(RuntimeError):
-    """``render_mode="human"`` where no window can open (the message says why and what to do instead)."""
+class NoWindowWarning(UserWarning):
+    """``render_mode="human"`` where no window can open (the message says why and what to do instead); make it an
+    error with ``warnings.simplefilter("error", NoWindowWarning)``."""
 
 
 def _interactive_backends() -> list[str]:
@@ -44,20 +47,28 @@ def window_problem() -> str | None:
 
 class FrameWindow:
     """A window titled ``title`` that shows each RGB frame given to ``show`` and waits ``1 / fps`` s (the window's
-    event loop runs meanwhile); closed by ``close``, and opened again by ``show`` if the user closed it."""
+    event loop runs meanwhile); closed by ``close``, and opened again by ``show`` if the user closed it. Where no
+    window can open, building it warns (``NoWindowWarning``) and ``show`` does nothing."""
 
     def __init__(self, title: str, fps: float) -> None:
-        problem = window_problem()
-        if problem is not None:
-            raise NoWindowError(
-                f"render_mode='human' cannot open a window: {problem}. To see episodes here, record them instead: "
-                "render_mode='rgb_array' (gymnasium.wrappers.RecordVideo), or python runners/render.py"
-            )
         self.title, self.fps = title, fps
         self._figure = None
         self._image = None
+        problem = window_problem()
+        self.opens = problem is None
+        if problem is not None:
+            warnings.warn(
+                NoWindowWarning(
+                    f"render_mode='human' shows no window: {problem}. The env runs without one; to see episodes "
+                    "here, record them: render_mode='rgb_array' (gymnasium.wrappers.RecordVideo), or python "
+                    "runners/render.py"
+                ),
+                stacklevel=3,
+            )
 
     def show(self, frame: np.ndarray) -> None:
+        if not self.opens:
+            return
         import matplotlib.pyplot as plt
 
         if self._figure is None or not plt.fignum_exists(self._figure.number):
