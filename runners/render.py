@@ -140,8 +140,13 @@ def main(argv: list[str] | None = None) -> int:
         if not run_dir.is_dir():
             parser.error(f"{run_dir} is not a folder; give a run folder (with config.yaml and policy.pt)")
         from sidewalk.report.runs import POLICY_FILES
-        from sidewalk.run_folder import CONFIG, policy_file
+        from sidewalk.run_folder import CONFIG, GroupFolderGiven, one_run_folder, policy_file
 
+        try:
+            one_run_folder(run_dir)  # an episode is one run's: a group folder names its seeds'
+        except GroupFolderGiven as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
         if not (run_dir / CONFIG).exists():
             parser.error(f"{run_dir} has no {CONFIG}; give a run folder written by runners/main.py")
         if policy_file(run_dir) is None:

@@ -12,6 +12,10 @@ Files (see ``sidewalk.experiment`` for what the trial writes into them):
   with ``keep_checkpoint=final`` (the default) it is all that stays of the state once the run has finished;
 - ``.writer.lock``: the lock of the one process that writes the folder (``writer_lock``) and who it is.
 
+A group folder (``replicas=R``) holds one ordinary run folder per seed, ``seed<S>/`` (``replica_dir``), beside
+``.group/`` (the group's own config, history and checkpoint). Commands that take many runs read it as its seed
+folders (``seed_folders``); one that needs one run names them (``one_run_folder``).
+
 Every ``.pt`` file is read back through ``read_torch_file``, which builds tensors and plain data only: a file
 someone sent cannot run code.
 """
@@ -25,6 +29,7 @@ import json
 import math
 import os
 import pickle
+import re
 import socket
 import subprocess
 import sys
@@ -49,6 +54,38 @@ LOCK = ".writer.lock"
 GROUP_DIR = ".group"
 # Keys a resume may change: the flag itself and what is kept after the run, neither of which changes a number.
 RESUME_MAY_CHANGE = ("resume", "keep_checkpoint")
+
+
+def replica_dir(run_dir: str | Path, seed: int) -> Path:
+    """Where seed ``seed`` of a group (a run of several seeds, ``replicas=R``) writes its run folder."""
+    return Path(run_dir) / f"seed{seed}"
+
+
+def is_group_folder(path: str | Path) -> bool:
+    """Whether ``path`` is a group folder: the folder of a run of several seeds, holding ``.group/``."""
+    return (Path(path) / GROUP_DIR).is_dir()
+
+
+def seed_folders(path: str | Path) -> list[Path]:
+    """The seeds' run folders of the group folder ``path`` (``replica_dir``), in seed order; [] for any other
+    folder (or a group killed before its seeds' folders were made)."""
+    if not is_group_folder(path):
+        return []
+    seeds = sorted(int(match[1]) for child in Path(path).iterdir()
+                   if child.is_dir() and (match := re.fullmatch(r"seed(\d+)", child.name)))
+    return [replica_dir(path, seed) for seed in seeds]
+
+
+def one_run_folder(path: str | Path, shown: str | None = None) -> Path:
+    """``path`` as the one run a command needs (``shown``: how the message shows it, ``opponent.path='...'``; by
+    default the path); a group folder raises ``GroupFolderGiven`` naming its seeds' folders to choose from."""
+    if not is_group_folder(path):
+        return Path(path)
+    seeds = seed_folders(path)
+    choose = (f"give one of its {len(seeds)} seeds' run folders: {', '.join(map(str, seeds))}" if seeds
+              else "none of its seeds' run folders has been made yet")
+    raise GroupFolderGiven(f"{shown or path} is a group folder (several seeds trained together, replicas=R) and "
+                           f"one run is needed here: {choose}")
 
 
 def write_compressed_metrics(metrics: Any, folder: Path) -> None:
@@ -83,6 +120,11 @@ class UnsafeFile(UnreadableFile):
             f"{path} holds {', '.join(held)}: a sidewalk file holds only tensors and plain data, so it was refused and "
             "nothing in it ran. Load it by hand only if you trust its author (torch.load(weights_only=False))",
         )
+
+
+class GroupFolderGiven(RunFolderError, ValueError):
+    """A group folder given where one run is needed (the message names its seeds' folders): a ValueError too, a bad
+    input that every runner reports as one ``error:`` line."""
 
 
 class FolderInUse(RunFolderError):
@@ -214,10 +256,10 @@ def policy_file(run_dir: str | Path) -> Path | None:
 
 def read_saved_config(run_dir: str | Path) -> Any:
     """A run folder's ``config.yaml`` with every key it lacks filled from today's schemas (``with_schema_defaults``);
-    raises ``FileNotFoundError`` when the folder has none."""
+    raises ``FileNotFoundError`` when the folder has none, ``GroupFolderGiven`` naming a group folder's seeds'."""
     from sidewalk.schema import with_schema_defaults
 
-    path = Path(run_dir) / CONFIG
+    path = one_run_folder(run_dir) / CONFIG
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist: {run_dir} is not a run folder")
     return with_schema_defaults(OmegaConf.load(path))

@@ -30,16 +30,12 @@ from sidewalk.run_folder import (
     check,
     load_checkpoint,
     record_start,
+    replica_dir,
     save_checkpoint,
 )
 from sidewalk.snapshot import capture_env, capture_rng, restore_env, restore_rng
 
 WALL_CLOCK_COLUMNS = ("time_s", "frames_per_s")
-
-
-def replica_dir(run_dir: Path, seed: int) -> Path:
-    """Where seed ``seed`` of a run of several seeds writes its run folder."""
-    return Path(run_dir) / f"seed{seed}"
 
 
 def replica_config(config: dict[str, Any], seed: int) -> dict[str, Any]:

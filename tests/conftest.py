@@ -11,6 +11,8 @@ import torch
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
     torch.set_num_threads(1)
+# No test opens a window, display or not: render_mode="human" (Gymnasium's check_env builds it) then warns, draws nothing.
+os.environ.setdefault("MPLBACKEND", "Agg")
 
 
 @pytest.fixture(scope="module")

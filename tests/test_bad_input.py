@@ -1,6 +1,6 @@
-"""Bad input is refused in words: actions outside their space in every face (gymnasium single and vector,
-Safety-Gymnasium, PettingZoo), and rooms too small for their agents; good input of every accepted kind still
-works."""
+"""Bad input is refused in words: actions outside their space in every face (the TorchRL envs and views, gymnasium
+single and vector, Safety-Gymnasium, PettingZoo), and rooms too small for their agents; good input of every accepted
+kind still works."""
 
 from __future__ import annotations
 
@@ -24,6 +24,7 @@ DISCRETE, CONTINUOUS = ENV_IDS["discrete"], ENV_IDS["continuous"]
 SAFETY_DISCRETE, SAFETY_CONTINUOUS = (safety_gymnasium.SAFETY_ENV_IDS[d] for d in ("discrete", "continuous"))
 BOX_TEXT = "Box([-1. -0.3926991], [1. 0.3926991], (2,), float32)"
 NUM_WORLDS = 4
+ENVS = {"discrete": DiscreteSidewalkEnv, "continuous": ContinuousSidewalkEnv}
 
 
 def make_single(face: str, domain: str) -> gymnasium.Env:
@@ -174,6 +175,81 @@ def test_checked_action_has_no_loop_over_worlds_on_the_happy_path():
     assert discrete.shape == (128,)
 
 
+# ---- TorchRL: the core envs and the learners' views --------------------------------------------------------
+
+GRID_EXPECTED = r"expected \('agents', 'action'\): int64 of shape \(2, 2\), indices in \[0, 4\) \(UP, DOWN, LEFT, RIGHT\)"
+PLANE_EXPECTED = r"expected \('agents', 'action'\): float32 of shape \(2, 2, 2\), finite values \(clamped to low"
+
+
+def _grid_action(value) -> torch.Tensor:
+    action = torch.zeros(2, 2, dtype=torch.long)
+    action[1, 0] = value
+    return action
+
+
+@pytest.mark.parametrize(
+    "domain, key, action, match",
+    [
+        ("discrete", "action", torch.zeros(2, 2, dtype=torch.long),
+         r"no action under \('agents', 'action'\); found 'action': put it under \('agents', 'action'\); "
+         + GRID_EXPECTED),
+        ("discrete", ("agents", "action"), _grid_action(7),
+         r"out-of-range action in 1 of 2 worlds \(world 1 agent 0: 7\); " + GRID_EXPECTED),
+        ("discrete", ("agents", "action"), _grid_action(-1),
+         r"out-of-range action in 1 of 2 worlds \(world 1 agent 0: -1\); " + GRID_EXPECTED),
+        ("discrete", ("agents", "action"), torch.ones(2, 2), r"got float32 of shape \(2, 2\) \[1.0, 1.0, 1.0, 1.0\]; "
+         + GRID_EXPECTED),
+        ("continuous", ("agents", "action"), torch.zeros(2, 2, 3), r"got float32 of shape \(2, 2, 3\) .*; "
+         + PLANE_EXPECTED),
+        ("continuous", ("agents", "action"), torch.zeros(2, 2, 2, dtype=torch.float64),
+         r"got float64 of shape \(2, 2, 2\) .*; " + PLANE_EXPECTED),
+    ],
+    ids=["flat-key", "grid-7", "grid-negative", "grid-float", "continuous-3-wide", "continuous-float64"],
+)
+def test_a_torchrl_env_refuses_a_bad_action_naming_its_key_dtype_shape_and_range(domain, key, action, match):
+    env = ENVS[domain](num_envs=2, seed=0)
+    td = env.reset()
+    td.set(key, action)
+    with pytest.raises(ValueError, match=f"^{type(env).__name__}.step: {match}"):
+        env.step(td)
+    # Refused before anything moved: a good action then steps the worlds as it steps a fresh env's.
+    fresh = ENVS[domain](num_envs=2, seed=0)
+    fresh_td = fresh.reset()
+    for tensordict in (td, fresh_td):
+        tensordict.set(("agents", "action"), env.full_action_spec["agents", "action"].zero())
+    torch.testing.assert_close(env.step(td)["next", "agents", "state"], fresh.step(fresh_td)["next", "agents", "state"])
+
+
+EGO_GRID = r"expected 'action': int64 of shape \(2,\), indices in \[0, 4\) \(UP, DOWN, LEFT, RIGHT\)"
+
+
+@pytest.mark.parametrize(
+    "domain, kind, bad, match",
+    [
+        ("discrete", "ego", lambda good: good + 4,
+         r"EgoView.step: out-of-range action in 2 of 2 worlds \(world 0: 4; world 1: 4\); " + EGO_GRID),
+        ("discrete", "centralized", lambda good: good.float(),
+         (r"CentralizedView.step: got float32 of shape \(2,\) .*expected 'action': int64 of shape \(2,\), "
+         r"indices in \[0, 16\)$")),
+        ("continuous", "ego", lambda good: good[:, :1],
+         r"EgoView.step: got float32 of shape \(2, 1\) .*expected 'action': float32 of shape \(2, 2\)"),
+        ("continuous", "self", lambda good: torch.cat([good, good[..., :1]], -1),
+         (r"SelfPlayView.step: got float32 of shape \(2, 2, 3\) .*expected \('agents', 'action'\): float32 of "
+         r"shape \(2, 2, 2\)")),
+    ],
+    ids=["ego-grid-range", "centralized-grid-float", "ego-continuous-narrow", "self-continuous-wide"],
+)
+def test_a_view_refuses_a_bad_action_under_its_own_key(domain, kind, bad, match):
+    from sidewalk.views import make_view
+
+    view = make_view(kind, ENVS[domain](num_envs=2, seed=0))
+    key = ("agents", "action") if kind == "self" else "action"
+    td = view.reset()
+    td.set(key, bad(view.full_action_spec[key].zero()))
+    with pytest.raises(ValueError, match=match):
+        view.step(td)
+
+
 # ---- PettingZoo --------------------------------------------------------------------------------------------
 
 def test_the_parallel_env_names_the_agent_its_action_and_its_space():
@@ -213,7 +289,6 @@ def test_the_parallel_env_ignores_a_finished_agents_action_unchecked():
 
 # ---- layouts: a room for their agents ----------------------------------------------------------------------
 
-ENVS = {"discrete": DiscreteSidewalkEnv, "continuous": ContinuousSidewalkEnv}
 DEFAULT_ROOM_M = {"length_m": 4.0, "width_m": 3.0}
 
 

@@ -56,6 +56,24 @@ def test_continuous_specs(num_envs, noise):
     check_env_specs(ContinuousSidewalkEnv(num_envs=num_envs, seed=0, noise=noise), seed=None)
 
 
+def test_print_env_shows_its_worlds_and_every_spec():
+    from sidewalk.views import make_view
+
+    grid, plane = DiscreteSidewalkEnv(num_envs=2, seed=0), ContinuousSidewalkEnv(num_envs=2, seed=0, layout="door")
+    text = repr(grid)
+    assert text.startswith("DiscreteSidewalkEnv(\n  num_envs=2, n_agents=2, layout='sidewalk', replicas=1, device=cpu\n")
+    for line in ("('agents', 'observation'): Bounded(0, 255) uint8 (2, 2, 1, 14, 30)",
+                 "('agents', 'action'): Categorical(n=4) int64 (2, 2)",
+                 "('agents', 'reward'): Unbounded float32 (2, 2, 1)",
+                 "('agents', 'info', 'timed_out'): Categorical(n=2) bool (2, 2, 1)",
+                 "'done': Categorical(n=2) bool (2, 1)"):
+        assert f"\n    {line}\n" in text
+    assert "('agents', 'action'): Bounded(low=[-1, -0.3927], high=[1, 0.3927]) float32 (2, 2, 2)" in repr(plane)
+    view = repr(make_view("ego", grid, opponent="dijkstra"))
+    assert "\n    'action': Categorical(n=4) int64 (2,)\n" in view  # the view's own specs, then its core's
+    assert "(core): DiscreteSidewalkEnv(\n" in view and "env=DiscreteSidewalkEnv, in_keys" in view
+
+
 def test_multi_agent_layout_shapes():
     env = DiscreteSidewalkEnv(num_envs=5, seed=0)
     td = env.rand_step(env.reset())

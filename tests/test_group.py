@@ -1,9 +1,11 @@
 """Several seeds in one trial (``replicas=R``): a run is the same for the same seed and R, a replica's update is its
 lone learner's, a learner without a replica axis trains each replica as its lone run, every replica's folder is an
-ordinary run folder, and a killed or pre-empted group resumes to the same numbers."""
+ordinary run folder, a command that needs one run names a group folder's seeds' folders, and a killed or pre-empted
+group resumes to the same numbers."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import signal
@@ -23,13 +25,13 @@ from sidewalk.algos.replicas import replica_state
 from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.experiment import Trial
+from sidewalk.opponents.policy import read_partner
 from sidewalk.registry import LEARNERS
 from sidewalk.report.document import write_report
 from sidewalk.report.runs import find_run_folders, load_run
 from sidewalk.report.tables import Settings
-from sidewalk.run_folder import GROUP_DIR, read_torch_file
+from sidewalk.run_folder import GROUP_DIR, read_torch_file, replica_dir
 from sidewalk.schema import register_schemas
-from sidewalk.trial_state import replica_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 WALL_CLOCK = ["time_s", "frames_per_s"]
@@ -188,12 +190,44 @@ def test_replica_folders_are_ordinary_run_folders(tmp_path):
     summary = json.loads((replica_dir(group, 2) / "summary.json").read_text())
     assert summary["seed"] == 2 and summary["iterations"] == 4
     assert (group / "report" / "report.md").exists()  # the group ended with one report over its replicas
+    # A partner is one run: the group folder names its seeds' folders, either of which plays.
+    with pytest.raises(ValueError, match=f"{replica_dir(group, 1)}, {replica_dir(group, 2)}"):
+        read_partner(group)
+    assert read_partner(replica_dir(group, 2)).algo_name == "dqn"
     result = write_report([tmp_path], tmp_path / "report", Settings(n_resamples=200))
     assert not result.skipped
     # To the report, the lone run of seed 2 is the same condition as the group and the same run as its replica 2.
     (condition,) = result.conditions
     assert sorted(run.seed for run in condition.runs) == [1, 2]
     assert [seed for seed, _, _ in condition.duplicates] == [2]
+
+
+def written_group(folder: Path, seeds: tuple[int, ...] = (3, 4)) -> Path:
+    """A group folder laid out as a finished group of ``seeds`` leaves it (its files' contents are not read here):
+    ``.group/`` and one run folder per seed, beside the group's report."""
+    (folder / GROUP_DIR).mkdir(parents=True)
+    (folder / GROUP_DIR / "config.yaml").write_text(f"seed: {seeds[0]}\nreplicas: {len(seeds)}\n")
+    (folder / "report").mkdir()
+    for seed in seeds:
+        replica_dir(folder, seed).mkdir()
+        for name in ("config.yaml", "policy.pt", "summary.json"):
+            (replica_dir(folder, seed) / name).write_text("")
+    return folder
+
+
+def test_a_command_that_needs_one_run_names_a_group_folders_seeds(tmp_path, capsys):
+    group = written_group(tmp_path / "group")
+    seeds = f"{replica_dir(group, 3)}, {replica_dir(group, 4)}"
+    assert find_run_folders([group]) == [replica_dir(group, 3), replica_dir(group, 4)]  # as reports and cross-play
+    with pytest.raises(ValueError, match=f"opponent.path='{group}' is a group folder .*: give one of its 2 seeds' run "
+                                         f"folders: {seeds}"):
+        read_partner(group)
+    spec = importlib.util.spec_from_file_location("render_runner", ROOT / "runners" / "render.py")
+    render = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(render)
+    assert render.main([str(group)]) == 2
+    assert capsys.readouterr().err == f"error: {group} is a group folder (several seeds trained together, replicas=R) " \
+                                      f"and one run is needed here: give one of its 2 seeds' run folders: {seeds}\n"
 
 
 @pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGTERM], ids=["killed", "preempted"])

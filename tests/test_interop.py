@@ -126,6 +126,73 @@ def test_render_returns_an_rgb_frame():
     assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[-1] == 3
 
 
+HEADLESS = r"render_mode='human' shows no window: this machine has no display \(\$DISPLAY and \$WAYLAND_DISPLAY"
+
+
+@pytest.fixture
+def headless(monkeypatch):
+    """A Linux machine without a display, where matplotlib falls back to its non-interactive Agg backend."""
+    import sys
+
+    import matplotlib
+
+    for name in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.setattr(matplotlib, "get_backend", lambda: "agg")
+
+
+def test_human_render_mode_says_why_no_window_opens_and_runs_without_one(headless):
+    with pytest.warns(UserWarning, match=HEADLESS + r".*render_mode='rgb_array'"):
+        env = gymnasium.make(DISCRETE, render_mode="human")
+    env.reset(seed=0)
+    env.step(0)
+    assert env.render() is None  # human mode draws into its window and returns nothing, as gymnasium's envs do
+    env.close()
+    pytest.importorskip("pettingzoo")
+    from sidewalk.interop.pettingzoo import parallel_env
+
+    with pytest.warns(UserWarning, match=HEADLESS):
+        env = parallel_env(domain="continuous", render_mode="human")
+    env.reset(seed=0)
+    env.step({"agent_0": np.zeros(2, np.float32), "agent_1": np.zeros(2, np.float32)})
+
+
+def test_human_render_mode_with_a_display_but_no_gui_toolkit_names_the_toolkits(headless, monkeypatch):
+    from sidewalk.interop.window import window_problem
+
+    monkeypatch.setenv("DISPLAY", ":0")
+    assert "found no GUI toolkit (install one, e.g. `apt install python3-tk`" in window_problem()
+    import matplotlib
+
+    monkeypatch.setattr(matplotlib, "get_backend", lambda: "TkAgg")
+    assert window_problem() is None
+
+
+def test_human_render_mode_shows_each_frame_in_one_window(monkeypatch):
+    import matplotlib.pyplot as plt
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    from sidewalk.interop import window
+
+    monkeypatch.setattr(window, "window_problem", lambda: None)  # as where an interactive backend runs
+    waits = []
+    monkeypatch.setattr(FigureCanvasBase, "start_event_loop", lambda canvas, timeout: waits.append(timeout))
+    env = gymnasium.make(DISCRETE, render_mode="human")
+    env.reset(seed=0)  # Agg here stands in for a window
+    core = env.unwrapped.view
+    figure = env.unwrapped._window._figure
+    shown = figure.axes[0].images[0]
+    np.testing.assert_array_equal(shown.get_array(), core.render(0))
+    for _ in range(3):
+        env.step(0)
+        np.testing.assert_array_equal(shown.get_array(), core.render(0))
+    assert env.render() is None and waits == [0.1] * 5
+    assert plt.fignum_exists(figure.number) and len(plt.get_fignums()) == 1
+    env.close()
+    assert not plt.fignum_exists(figure.number)
+
+
 def test_ego_info_reports_the_ego():
     env = SidewalkGymEnv("discrete", ego=1)
     env.reset(seed=0)

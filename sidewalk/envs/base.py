@@ -39,11 +39,12 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 from tensordict import TensorDictBase
-from torchrl.data import Categorical, Composite, Unbounded
+from torchrl.data import Bounded, Categorical, Composite, TensorSpec, Unbounded
 from torchrl.envs import EnvBase
 
 from sidewalk._checks import check_int, replace_checked
 from sidewalk._torchrl import new_tensordict_unchecked
+from sidewalk.envs.actions import ActionCheck
 from sidewalk.envs.rewards import RewardParams, compose_reward
 
 AGENT_GROUP = "agents"
@@ -113,6 +114,32 @@ def swap_in_reset(
     return tensordict
 
 
+def _spec_text(leaf: TensorSpec) -> str:
+    """A spec leaf in a few words: its kind and values, dtype and shape."""
+    if isinstance(leaf, Categorical):
+        kind = f"Categorical(n={leaf.space.n})"
+    elif isinstance(leaf, Bounded):
+        low, high = leaf.space.low, leaf.space.high
+        if bool((low == low.reshape(-1)[0]).all() and (high == high.reshape(-1)[0]).all()):
+            kind = f"Bounded({low.reshape(-1)[0].item():.4g}, {high.reshape(-1)[0].item():.4g})"
+        else:  # bounds that vary along the last axis only (a continuous action's)
+            rows = [", ".join(f"{x:.4g}" for x in bound.reshape(-1, bound.shape[-1])[0].tolist()) for bound in (low, high)]
+            kind = f"Bounded(low=[{rows[0]}], high=[{rows[1]}])"
+    else:
+        kind = "Unbounded" if isinstance(leaf, Unbounded) else type(leaf).__name__
+    return f"{kind} {str(leaf.dtype).removeprefix('torch.')} {tuple(leaf.shape)}"
+
+
+def spec_lines(env: EnvBase) -> list[str]:
+    """``env``'s specs as TorchRL's ``full_*_spec`` hold them, one leaf a line: key, kind and values, dtype, shape."""
+    lines = []
+    for name in ("observation", "action", "reward", "done"):
+        lines.append(f"{name}_spec:")
+        for key, leaf in getattr(env, f"full_{name}_spec").items(include_nested=True, leaves_only=True):
+            lines.append(f"  {key!r}: {_spec_text(leaf)}")
+    return lines
+
+
 class SidewalkEnvBase(EnvBase):
     """A batch of ``num_envs`` Sidewalk worlds as one multi-agent TorchRL environment.
 
@@ -138,6 +165,7 @@ class SidewalkEnvBase(EnvBase):
     """
 
     Params: ClassVar[type]
+    ACTION_LABELS: ClassVar[tuple[str, ...]] = ()  # the names of a discrete action's values, for error messages
     # The name in RewardParams of the weight of the domain's shaping term; None: the domain weighs its terms itself.
     shaping_weight_name: ClassVar[str | None]
 
@@ -252,6 +280,10 @@ class SidewalkEnvBase(EnvBase):
             shape=batch,
             device=self.device,
         )
+        # The grid's actions are indices, always checked; a continuous one's finiteness is the check_actions switch.
+        self._check_action = ActionCheck(action_spec, (AGENT_GROUP, "action"), type(self).__name__,
+                                         labels=self.ACTION_LABELS,
+                                         check_finite=getattr(self.params, "check_actions", True))
         self.reward_spec = Composite(
             {
                 AGENT_GROUP: Composite(
@@ -323,10 +355,10 @@ class SidewalkEnvBase(EnvBase):
         return torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get((AGENT_GROUP, "action"), None)
+        self._check_action(action, tensordict)
         active = self._active
-        reached_now, hit_wall_now, hit_agent_now, shaping_term = self._advance(
-            tensordict.get((AGENT_GROUP, "action")), active
-        )
+        reached_now, hit_wall_now, hit_agent_now, shaping_term = self._advance(action, active)
         collided_now = hit_wall_now | hit_agent_now
         status = self._status
         status["reached_goal"] = status["reached_goal"] | reached_now
@@ -419,6 +451,13 @@ class SidewalkEnvBase(EnvBase):
         )
 
     # ---- conveniences -------------------------------------------------------------------------------------------
+
+    def extra_repr(self) -> str:
+        # nn.Module's repr (EnvBase has none of its own) shows only this: the worlds, then every spec.
+        layout = self.params.layout if isinstance(self.params.layout, str) else type(self.params.layout).__name__
+        head = (f"num_envs={self.num_envs}, n_agents={self.n_agents}, layout={layout!r}, replicas={self.replicas}, "
+                f"device={self.device}")
+        return "\n".join([head, *spec_lines(self)])
 
     STATE_WIDTH: ClassVar[int]  # numbers per agent in ``global_state``
     room_sides: tuple[str, str]  # the names of the room's two sides in ``Params``, in ``_room``'s order

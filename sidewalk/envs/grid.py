@@ -128,6 +128,7 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
     """
 
     Params = DiscreteParams
+    ACTION_LABELS = ACTIONS
     shaping_weight_name = None  # two shaping terms, weighed in _advance: c_center and c_progress
 
     room_sides = ("width_cells", "length_cells")

@@ -204,29 +204,8 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
             noise = self.rand(shape, drawn).index_select(0, rows)
         return (2.0 * noise - 1.0) * self.params.noise
 
-    def _check_finite(self, action: torch.Tensor) -> None:
-        """Raise on a NaN or infinite action: the bounds would pass NaN through and the world's state would turn
-        NaN without a word (an inactive agent's too: NaN · 0 is NaN). The sum is finite exactly when every entry
-        is (bounded actions cannot overflow it): one reduction and one sync, cheaper than ``isfinite().all()``."""
-        if math.isfinite(action.sum().item()):
-            return
-        bad = ~torch.isfinite(action).all(-1)  # (B, N)
-        if not bad.any():
-            return  # finite entries whose float32 sum overflowed (unbounded actions, later clamped)
-        worlds, agents = bad.nonzero(as_tuple=True)
-        shown = ", ".join(
-            f"world {w} agent {a}: {action[w, a].tolist()}" for w, a in zip(worlds[:5].tolist(), agents[:5].tolist())
-        )
-        more = f" and {len(worlds) - 5} more" if len(worlds) > 5 else ""
-        raise ValueError(
-            f"non-finite action in {int(bad.any(-1).sum())} of {self.num_envs} worlds ({shown}{more}); "
-            "the policy that chose it has diverged or is fed NaN (env.check_actions=false skips this check)"
-        )
-
     def _advance(self, action: torch.Tensor, active: torch.Tensor):
         p = self.params
-        if p.check_actions:
-            self._check_finite(action)
         if p.noise > 0.0:
             action = action + self._uniform_noise(action.shape)
         accel = action[..., 0].clamp(-p.max_accel_mps2, p.max_accel_mps2)

@@ -55,6 +55,7 @@ from sidewalk._checks import check_choice
 from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, RENDER_MODES, SidewalkEnvBase
 from sidewalk.envs.grid import DiscreteSidewalkEnv
 from sidewalk.envs.unicycle import OBSERVATION_FIELDS, ContinuousSidewalkEnv
+from sidewalk.interop.window import FrameWindow
 from sidewalk.registry import OPPONENTS
 from sidewalk.views import WORLD, CentralizedView, EgoView, view_for_opponent
 
@@ -65,6 +66,8 @@ DOMAINS: dict[str, type[SidewalkEnvBase]] = {
 ENV_IDS = {"discrete": "sidewalk/Discrete-v0", "continuous": "sidewalk/Continuous-v0"}
 CENTRALIZED = "centralized"
 RENDER_FPS = 10
+# One world's faces also show it in a window (sidewalk.interop.window), as Gymnasium's envs do with "human".
+WINDOW_RENDER_MODES = (*RENDER_MODES, "human")
 # Float32 rounding of positions and headings may land a hair past the nominal bounds.
 _BOUND_SLACK = 1e-3
 
@@ -256,7 +259,7 @@ class SidewalkGymEnv(gymnasium.Env):
     The TorchRL view behind it is ``self.view``.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": list(RENDER_MODES), "render_fps": RENDER_FPS}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": list(WINDOW_RENDER_MODES), "render_fps": RENDER_FPS}
 
     def __init__(
         self,
@@ -271,8 +274,9 @@ class SidewalkGymEnv(gymnasium.Env):
         **env_kwargs: Any,
     ) -> None:
         if render_mode is not None:
-            check_choice("render_mode", render_mode, RENDER_MODES)
+            check_choice("render_mode", render_mode, WINDOW_RENDER_MODES)
         self.render_mode = render_mode
+        self._window = FrameWindow(ENV_IDS.get(domain, "sidewalk"), RENDER_FPS) if render_mode == "human" else None
         self.view = build_view(
             domain, 1, opponent, ego, end_on_ego_done, opponent_kwargs, device=device, **env_kwargs
         )
@@ -287,12 +291,14 @@ class SidewalkGymEnv(gymnasium.Env):
         if seed is not None:
             self.view.set_seed(seed)
         out = self.view._reset(None)
+        self._show()
         return self._observation(out), self._single_info(out)
 
     def step(self, action: Any):
         checked = checked_action(action, self.action_space)
         action = torch.as_tensor(checked, dtype=self._action_dtype, device=self.view.device)
         out = self.view._step(TensorDict({"action": action.reshape(self._action_shape)}, batch_size=[1]))
+        self._show()
         return (
             self._observation(out),
             float(out.get("reward")[0, 0]),
@@ -315,13 +321,28 @@ class SidewalkGymEnv(gymnasium.Env):
         }
 
     def render(self) -> np.ndarray | None:
-        """The world as an RGB uint8 array with ``render_mode="rgb_array"``; ``None`` (with a warning) without."""
+        """The world as an RGB uint8 array with ``render_mode="rgb_array"``; with ``"human"`` it is shown in a
+        window (as ``reset`` and ``step`` do) and ``None`` returned; ``None`` (with a warning) without a mode."""
         if self.render_mode is None:
             gymnasium.logger.warn(
-                "render() was called without a render mode; pass render_mode='rgb_array' to gymnasium.make"
+                "render() was called without a render mode; pass render_mode='rgb_array' (or 'human', a window) to "
+                "gymnasium.make"
             )
             return None
+        if self._window is not None:
+            self._show()
+            return None
         return self.view.render(0)
+
+    def _show(self) -> None:
+        """``render_mode="human"``: the world in the window (not drawn at all where no window opens)."""
+        if self._window is not None and self._window.opens:
+            self._window.show(self.view.render(0))
+
+    def close(self) -> None:
+        """Close the window of ``render_mode="human"``; the world itself lives in tensors."""
+        if self._window is not None:
+            self._window.close()
 
 
 class SidewalkVectorEnv(VectorEnv):

@@ -37,8 +37,9 @@ from gymnasium import spaces
 from tensordict import TensorDict, TensorDictBase
 
 from sidewalk._checks import check_choice
-from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, RENDER_MODES
-from sidewalk.interop.gymnasium import DOMAINS, RENDER_FPS, agent_spaces, checked_action
+from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS
+from sidewalk.interop.gymnasium import DOMAINS, RENDER_FPS, WINDOW_RENDER_MODES, agent_spaces, checked_action
+from sidewalk.interop.window import FrameWindow
 
 
 class SidewalkParallelEnv(ParallelEnv):
@@ -50,7 +51,7 @@ class SidewalkParallelEnv(ParallelEnv):
 
     metadata: ClassVar[dict[str, Any]] = {
         "name": "sidewalk_v0",
-        "render_modes": list(RENDER_MODES),
+        "render_modes": list(WINDOW_RENDER_MODES),
         "render_fps": RENDER_FPS,
         "is_parallelizable": True,
     }
@@ -64,8 +65,9 @@ class SidewalkParallelEnv(ParallelEnv):
     ) -> None:
         check_choice("domain", domain, DOMAINS)
         if render_mode is not None:
-            check_choice("render_mode", render_mode, RENDER_MODES)
+            check_choice("render_mode", render_mode, WINDOW_RENDER_MODES)
         self.render_mode = render_mode
+        self._window = FrameWindow(f"sidewalk_v0 ({domain})", RENDER_FPS) if render_mode == "human" else None
         self.domain = domain
         self.core = DOMAINS[domain](num_envs=1, device=device, **env_kwargs)
         self.possible_agents = self.core.agent_names
@@ -94,6 +96,7 @@ class SidewalkParallelEnv(ParallelEnv):
             self.core.set_seed(seed)
         self._last = out = self.core._reset(None)
         self.agents = list(self.possible_agents)
+        self._show()
         agents = out.get(AGENT_GROUP)
         return self._per_agent_observations(agents, self.agents), self._per_agent_infos(agents, self.agents)
 
@@ -117,6 +120,7 @@ class SidewalkParallelEnv(ParallelEnv):
             {AGENT_GROUP: TensorDict({"action": joint}, batch_size=self._action_shape[:2])}, [1]
         )
         self._last = out = self.core._step(core_in)
+        self._show()
         agents = out.get(AGENT_GROUP)
         reward = agents.get("reward")[0, :, 0].tolist()
         terminated = agents.get("terminated")[0, :, 0].tolist()
@@ -153,14 +157,27 @@ class SidewalkParallelEnv(ParallelEnv):
         return self._last.get((AGENT_GROUP, "state"))[0].reshape(-1).to(torch.float32).cpu().numpy().copy()
 
     def render(self) -> np.ndarray | None:
-        """The world as an RGB uint8 array with ``render_mode="rgb_array"``; ``None`` (with a warning) without."""
+        """The world as an RGB uint8 array with ``render_mode="rgb_array"``; with ``"human"`` it is shown in a
+        window (as ``reset`` and ``step`` do) and ``None`` returned; ``None`` (with a warning) without a mode."""
         if self.render_mode is None:
-            gymnasium.logger.warn("render() was called without a render mode; pass render_mode='rgb_array'")
+            gymnasium.logger.warn(
+                "render() was called without a render mode; pass render_mode='rgb_array' (or 'human', a window)"
+            )
+            return None
+        if self._window is not None:
+            self._show()
             return None
         return self.core.render(0)
 
+    def _show(self) -> None:
+        """``render_mode="human"``: the world in the window (not drawn at all where no window opens)."""
+        if self._window is not None and self._window.opens:
+            self._window.show(self.core.render(0))
+
     def close(self) -> None:
-        """Nothing to release: the world lives in tensors."""
+        """Close the window of ``render_mode="human"``; the world itself lives in tensors."""
+        if self._window is not None:
+            self._window.close()
 
 
 def parallel_env(

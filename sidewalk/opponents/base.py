@@ -83,6 +83,11 @@ class Opponent(TensorDictModuleBase):
         # Opponents written before the env published "present" implement act(state, goal, done): they still work.
         self._act_takes_present = "present" in inspect.signature(self.act).parameters
 
+    def __repr__(self) -> str:
+        # The env by its class only: its own repr lists every spec.
+        return (f"{type(self).__name__}(controlled={self.controlled}, ego={self.ego}, env={type(self.env).__name__}, "
+                f"in_keys={self.in_keys}, out_keys={self.out_keys})")
+
     @classmethod
     def replicated(cls, **kwargs: Any) -> bool:
         """Whether an opponent built with ``kwargs`` needs an instance per replica: ``per_replica``, unless a class

@@ -104,18 +104,20 @@ def saved_description(run_dir: str | Path) -> dict[str, Any]:
 
 def read_partner(path: str | Path, map_location: str | torch.device = "cpu") -> Partner:
     """The learner saved in the run folder ``path`` (its ``policy.pt``; a folder from before ``policy.pt``
-    described itself is read through its ``config.yaml``). Raises ``FileNotFoundError`` naming what is missing."""
+    described itself is read through its ``config.yaml``). Raises ``FileNotFoundError`` naming what is missing, and
+    ``GroupFolderGiven`` naming the seeds' folders of a group folder."""
     from sidewalk.envs.grid import DiscreteParams
     from sidewalk.envs.rewards import RewardParams
     from sidewalk.envs.unicycle import ContinuousParams
     from sidewalk.registry import LEARNERS
-    from sidewalk.run_folder import POLICY, policy_file, read_torch_file
+    from sidewalk.run_folder import POLICY, one_run_folder, policy_file, read_torch_file
 
     run_dir = Path(path)
     if not str(path):
         raise FileNotFoundError("opponent=policy needs opponent.path=RUN_DIR: the run folder of the partner's policy")
     if not run_dir.is_dir():
         raise FileNotFoundError(f"opponent.path={str(path)!r} is not a folder; give a run folder with a {POLICY}")
+    one_run_folder(run_dir, f"opponent.path={str(path)!r}")  # a partner is one policy: a group folder names its seeds'
     file = policy_file(run_dir)
     if file is None:
         raise FileNotFoundError(

@@ -19,11 +19,12 @@ from omegaconf import OmegaConf
 from sidewalk.run_folder import (
     CHECKPOINT,
     CONFIG,
-    GROUP_DIR,
     METRICS,
     METRICS_COMPRESSED,
     POLICY,
     SUMMARY,
+    is_group_folder,
+    seed_folders,
 )
 
 ERROR = "error.txt"
@@ -76,8 +77,8 @@ def find_run_folders(paths: Iterable[str | Path]) -> list[Path]:
         if not path.is_dir():
             raise NotADirectoryError(f"{path} is not a folder; give run folders or sweep folders")
         for root, dirs, files in os.walk(path):
-            if GROUP_DIR in dirs:  # replicas trained together: the run folders are its subfolders
-                dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            if is_group_folder(root):  # several seeds trained together: its run folders are its seeds'
+                dirs[:] = [folder.name for folder in seed_folders(root)]
             elif any(marker in files or marker in dirs for marker in RUN_MARKERS):
                 found.add(Path(root))
                 dirs[:] = []

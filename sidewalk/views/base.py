@@ -10,7 +10,8 @@ from torchrl.data import Composite
 from torchrl.envs import EnvBase
 
 from sidewalk._torchrl import new_tensordict_unchecked
-from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase, swap_in_reset
+from sidewalk.envs.actions import ActionCheck
+from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase, spec_lines, swap_in_reset
 from sidewalk.opponents.base import env_domain
 
 WORLD = "world"
@@ -58,6 +59,7 @@ class _SidewalkView(EnvBase):
         self._agents_shape = torch.Size((*env.batch_size, env.n_agents))
         self._last: TensorDictBase | None = None
         self._view_action_key: str | tuple[str, str] = "action"
+        self._check_action: ActionCheck | None = None  # built at the first step, from the view's action spec
 
     # ---- specs shared by the views -------------------------------------------------------------------------
 
@@ -116,7 +118,16 @@ class _SidewalkView(EnvBase):
         last = self._last
         if last is None:
             raise RuntimeError(f"{type(self).__name__}.step() was called before reset()")
-        last.set((AGENT_GROUP, "action"), self._joint_action(tensordict.get(self._view_action_key)))
+        action = tensordict.get(self._view_action_key, None)
+        if self._check_action is None:
+            self._check_action = ActionCheck(
+                self.full_action_spec[self._view_action_key], self._view_action_key, type(self).__name__,
+                labels=self._action_labels, check_finite=getattr(self.core.params, "check_actions", True),
+            )
+        # Checked against the view's own key and spec, before it is turned into the joint action (the core checks
+        # that again, the opponent's part included).
+        self._check_action(action, tensordict)
+        last.set((AGENT_GROUP, "action"), self._joint_action(action))
         self._before_core_step(last)
         if self.shield:
             safe, self._intervened = self.core.shield_action(last.get((AGENT_GROUP, "action")), self._shielded)
@@ -133,6 +144,11 @@ class _SidewalkView(EnvBase):
     def _joint_action(self, action: torch.Tensor) -> torch.Tensor:
         """The core's ("agents", "action") (B, N[, 2]) from the view's ``action``."""
         raise NotImplementedError
+
+    @property
+    def _action_labels(self) -> tuple[str, ...]:
+        """The names of a discrete action's values, for error messages: the core's (an agent's action)."""
+        return self.core.ACTION_LABELS
 
     def _before_core_step(self, core_in: TensorDictBase) -> None:
         """Last chance to fill in the core's input (the ego view's opponent writes its agents' actions)."""
@@ -172,6 +188,10 @@ class _SidewalkView(EnvBase):
             },
             batch_size=self._agents_shape,
         )
+
+    def extra_repr(self) -> str:
+        # The view's own specs; nn.Module's repr adds its core env and opponent below them.
+        return "\n".join([f"shield={self.shield}", *spec_lines(self)])
 
     def render(self, env_index: int = 0, **kwargs: Any):
         """The core's RGB rendering of world ``env_index`` (see the core env's ``render``; ``mode="rgb_array"``)."""

@@ -81,6 +81,10 @@ class CentralizedView(_SidewalkView):
             )
         return (per_agent * self._joint_place).sum(-1)
 
+    @property
+    def _action_labels(self) -> tuple[str, ...]:
+        return ()  # a joint index (``encode_action``), not one agent's move
+
     def _joint_action(self, action: torch.Tensor) -> torch.Tensor:
         if self.domain == "discrete":
             return self._decode_table.index_select(0, action.reshape(-1)).view(self._agents_shape)
