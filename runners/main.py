@@ -6,6 +6,10 @@
     python runners/main.py hydra.run.dir=results/runs/mine resume=true   # continue a killed run
     python runners/main.py hydra.run.dir=results/runs/mine resume=true iterations=1000 keep_checkpoint=all
                                                    # extend a run that finished with keep_checkpoint=all
+    python runners/main.py -m seed=0,1,2 hydra.sweep.dir=results/sweeps/mine resume=true
+                                         # continue a sweep: finished jobs skipped, the others resumed or started
+
+A stopped run or sweep prints the command that continues it.
 
 Exit status: 0 done; 2 a bad config or run folder, or a folder another process is writing (nothing computed); 1 an
 error, or a learner that diverged; 128 + n when signal n (SIGTERM, SIGUSR1, Ctrl-C's SIGINT) stopped the run after
@@ -15,6 +19,7 @@ writing its checkpoint (a second Ctrl-C stops at once, from the last checkpoint 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import signal
 import sys
@@ -30,6 +35,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from sidewalk import hydra_callbacks, run_folder
 from sidewalk.config import unknown_override
+from sidewalk.continue_command import continue_command
 from sidewalk.hydra_callbacks import ERROR_FILE, checked
 from sidewalk.paths import CONFIG_DIR
 from sidewalk.schema import register_schemas
@@ -46,25 +52,34 @@ def main(cfg: DictConfig) -> float | None:
     run_dir = Path(hydra_cfg.runtime.output_dir)
     in_sweep = hydra_cfg.mode == RunMode.MULTIRUN
     config = OmegaConf.to_container(cfg, resolve=True)
+    refused_file = run_dir.with_name(f"{run_dir.name}.{ERROR_FILE}")  # a refused job's error: not in its folder
     with contextlib.ExitStack() as held:
         try:
             experiment = checked(cfg)  # every check before any compute (a single run's passed them in CheckFirst)
             # One writer per folder, taken before the folder is read: a second process is refused here.
             held.enter_context(run_folder.writer_lock(run_dir))
-            from sidewalk.trial_state import check_folders
+            from sidewalk.trial_state import check_folders, read_summaries, state_dir
 
-            check_folders(run_dir, experiment, config)
+            plan = check_folders(run_dir, experiment, config, in_sweep)
         except run_folder.FolderInUse as error:
-            refuse(error, in_sweep, run_dir.with_name(f"{run_dir.name}.{ERROR_FILE}"))  # not its folder
+            refuse(error, in_sweep, refused_file)
             return None
         except (ValueError, TypeError, FileNotFoundError, NotADirectoryError, run_folder.RunFolderError) as error:
             refuse(error, in_sweep, run_dir / ERROR_FILE)
             return None
+        for stale in (run_dir / ERROR_FILE, refused_file):  # an earlier attempt's failure, which this one retries
+            stale.unlink(missing_ok=True)
+        if plan == "finished":
+            print(f"resume=true: {run_dir} finished at this budget already; nothing to do", file=sys.stderr)
+            return report(read_summaries(run_dir, experiment), run_dir, plots=False)
+        if plan == "start" and experiment.resume:  # a sweep's job that the interrupted sweep never reached
+            experiment, config = dataclasses.replace(experiment, resume=False), {**config, "resume": False}
         try:
-            return train(experiment, run_dir, config, in_sweep)
+            return train(experiment, run_dir, config, in_sweep, continue_command(hydra_cfg))
         except KeyboardInterrupt:  # Ctrl-C before the training loop took over SIGINT (start-up, the final report)
-            print(f"\ninterrupted; {run_dir} keeps what it had written (resume=true continues a checkpointed run)",
-                  file=sys.stderr)
+            holds_run = (state_dir(run_dir, experiment) / run_folder.CONFIG).exists()  # else: start it, no resume
+            print(f"\ninterrupted; {run_dir} keeps what it had written; continue with:\n  "
+                  f"{continue_command(hydra_cfg, resume=holds_run)}", file=sys.stderr)
             sys.exit(128 + signal.SIGINT)
 
 
@@ -78,14 +93,15 @@ def refuse(error: Exception, in_sweep: bool, error_file: Path) -> None:
     hydra_callbacks.refuse(error)
 
 
-def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | None:
-    """Run the trial and print its headline figures (and write its plots, outside a sweep)."""
+def train(experiment, run_dir: Path, config: dict, in_sweep: bool, continue_with: str) -> float | None:
+    """Run the trial and print its headline figures (and write its plots, outside a sweep); ``continue_with``: the
+    command that continues it, printed if it is stopped."""
     from sidewalk.experiment import Trial
     from sidewalk.stops import LearnerDiverged, RunInterrupted
 
     print(f"training {experiment.describe()}; run folder: {run_dir}", flush=True)  # before the progress bar
     try:
-        summaries = Trial(experiment, run_dir, config).run()
+        summaries = Trial(experiment, run_dir, config, continue_with).run()
     except RunInterrupted as stopped:
         print(f"\n{stopped}", file=sys.stderr)
         sys.exit(128 + stopped.signum)
@@ -101,7 +117,12 @@ def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | No
         # A failing job keeps its error in its own folder and lets the other jobs run; SweepStatus exits 1 at the end.
         (run_dir / ERROR_FILE).write_text(traceback.format_exc())
         return None
-    summaries = summaries if isinstance(summaries, list) else [summaries]
+    return report(summaries if isinstance(summaries, list) else [summaries], run_dir,
+                  plots=not in_sweep)  # a sweep's runs are reported together: runners/report.py <sweep folder>
+
+
+def report(summaries: list[dict], run_dir: Path, plots: bool) -> float | None:
+    """Print the seeds' headline figures (and write the run's plots); return their mean success."""
     print(f"\nrun folder: {run_dir}" + (f" ({len(summaries)} seeds)" if len(summaries) > 1 else ""))
     for summary in summaries:
         if len(summaries) > 1:
@@ -110,7 +131,7 @@ def train(experiment, run_dir: Path, config: dict, in_sweep: bool) -> float | No
             if key in summary:
                 print(f"  {key:22s} {summary[key]:.3f}")
         print(f"  {'wall_clock_s':22s} {summary['wall_clock_s']:.1f}")
-    if not in_sweep:  # a sweep's runs are reported together: runners/report.py <sweep folder>
+    if plots:
         write_plots(run_dir)
     successes = [summary.get("ego/success_rate", summary.get("team/success_rate")) for summary in summaries]
     return sum(successes) / len(successes) if None not in successes else None

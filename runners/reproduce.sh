@@ -7,8 +7,9 @@
 #   runners/reproduce.sh full --processes 4 replicas=5 --out results/sweeps/mine   # overrides go to every job
 #   runners/reproduce.sh --list                   # the jobs, in the order the pool takes them
 #
-# Run the same command again after a kill: finished jobs are skipped and the others resume. Jobs land in
-# $REPRODUCE_DIR/<preset>/ (or --out; default results/sweeps/reproduce_<scale>_<time>), the report in report/ there.
+# Run the same command again after Ctrl-C or a kill: it continues the newest unfinished reproduction of the same
+# arguments (finished jobs are skipped, the others resume or start); a stopped pool prints that command with --out.
+# Jobs land in --out (or $REPRODUCE_DIR; default results/sweeps/reproduce_<scale>_<time>), the report in report/ there.
 # The pool itself is sidewalk.reproduce (python -m sidewalk.reproduce --help).
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -52,12 +52,12 @@ from sidewalk.registry import LEARNERS
 from sidewalk.replica_learners import ReplicaSet
 from sidewalk.run_folder import (
     BEST_POLICY,
-    GROUP_DIR,
     SUMMARY,
     append_history,
     atomic_write,
     drop_training_state,
     git_revision,
+    has_checkpoint,
     package_versions,
     replica_dir,
     save_policy,
@@ -73,7 +73,9 @@ from sidewalk.trial_state import (
     replica_config,
     restore_trial,
     save_trial,
+    seed_dirs,
     show_progress,
+    state_dir,
 )
 from sidewalk.views import view_for_opponent
 
@@ -120,15 +122,18 @@ class Trial:
     one checkpoint in ``run_dir/.group/``. Their worlds live in one env and one collector gathers them; the learner
     trains them as one (``sidewalk.algos.replicas``)."""
 
-    def __init__(self, experiment: Experiment, run_dir: str | Path, config: dict | None = None) -> None:
+    def __init__(self, experiment: Experiment, run_dir: str | Path, config: dict | None = None,
+                 continue_command: str | None = None) -> None:
         """``config``: the resolved config to write as ``config.yaml`` (and check a resume against); without it
-        the folders get no ``config.yaml`` or ``history.jsonl`` (benchmarks' throwaway runs)."""
+        the folders get no ``config.yaml`` or ``history.jsonl`` (benchmarks' throwaway runs). ``continue_command``:
+        the command line that continues the trial, which an interruption prints."""
         self.experiment = experiment
         self.run_dir = Path(run_dir)
         self.config = config or {}
+        self.continue_command = continue_command
         self.seeds = [experiment.seed + replica for replica in range(experiment.replicas)]
-        self.state_dir = self.run_dir if len(self.seeds) == 1 else self.run_dir / GROUP_DIR
-        self.seed_dirs = [self.run_dir] if len(self.seeds) == 1 else [replica_dir(self.run_dir, s) for s in self.seeds]
+        self.state_dir = state_dir(self.run_dir, experiment)
+        self.seed_dirs = seed_dirs(self.run_dir, experiment)
 
     def run(
         self,
@@ -154,7 +159,7 @@ class Trial:
             desc = "train" if len(self.seeds) == 1 else f"train ×{len(self.seeds)}"
             bar = tqdm(total=self.experiment.iterations, initial=first.iteration, disable=not progress, desc=desc,
                        unit="it")
-            with StopSignals() as signals:
+            with StopSignals(self.continue_command) as signals:
                 for batch in parts.collector:
                     rows, stop = self._iteration(parts, batch, on_evaluation)
                     show_progress(bar, rows)
@@ -206,14 +211,16 @@ class Trial:
                      getattr(train_env.base_env, "ego", None))
 
     def _start(self, parts: Parts) -> None:
-        """A fresh start, or (``resume=true``) every state the checkpoint holds put back, metrics rewound to it."""
+        """A fresh start, or (``resume=true``) every state the checkpoint holds put back, metrics rewound to it (a run
+        stopped before its first checkpoint trains again from the start)."""
         exp = self.experiment
-        elapsed_before = restore_trial(parts, self.state_dir, exp.device) if exp.resume else 0.0
+        restored = exp.resume and has_checkpoint(self.state_dir)
+        elapsed_before = restore_trial(parts, self.state_dir, exp.device) if restored else 0.0
         if self.config:  # from runners/main.py: the folders record the config and this start
             record_starts(self.run_dir, self.config, parts.runs, self.experiment.resume)
         started = time.perf_counter() - elapsed_before
         for run in parts.runs:
-            if exp.resume:
+            if restored:
                 run.write_metrics()
             run.state.started, run.state.last_write = started, time.perf_counter()
 
@@ -304,7 +311,7 @@ class Trial:
                 append_history(self.state_dir, "interrupted", **stopped)
             for run in parts.runs:
                 run.history("interrupted", **stopped)
-            raise RunInterrupted(signals.received, state.iteration, self.run_dir)
+            raise RunInterrupted(signals.received, state.iteration, self.run_dir, self.continue_command)
         return done
 
     def _checkpoint(self, parts: Parts) -> None:

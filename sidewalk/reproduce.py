@@ -12,11 +12,13 @@ another preset waits. A job whose config equals an earlier job's is run once (Fi
 Fig. 6's ε = 0.01 condition); the report groups runs by config, so it finds that condition in either family.
 
 Each job lands in ``OUT/<preset>/<n>_<its sweep point>/`` (a sweep folder per preset, as ``runners/main.py -m`` makes
-it) and logs to ``<that folder>.log``. Run the same command again after a kill: finished jobs are skipped, jobs with a
-checkpoint resume (``resume=true``) and jobs killed before their first checkpoint start over (their folder is moved
-aside). SIGTERM or Ctrl-C stops the running jobs at the end of their iteration with a checkpoint. ``OUT/jobs.csv``
-records each job's start, end, wall-clock and exit status; the report (``OUT/report/report.md``) is written last.
-Exit status: 0 when every job and the report succeeded, 1 otherwise, 2 for bad arguments.
+it) and logs to ``<that folder>.log``. SIGTERM or Ctrl-C stops the running jobs at the end of their iteration with a
+checkpoint, and the pool prints the command that continues it (``--out OUT``). Run the same command again: without
+``--out`` it continues the newest unfinished reproduction of the same arguments (``OUT/reproduce.json`` records them),
+so finished jobs are skipped, jobs with a checkpoint resume (``resume=true``), jobs stopped before their first
+checkpoint start over in their folder and jobs never started start. ``OUT/jobs.csv`` records each job's start, end,
+wall-clock and exit status; the report (``OUT/report/report.md``) is written last. Exit status: 0 when every job and
+the report succeeded, 1 otherwise, 2 for bad arguments.
 """
 
 from __future__ import annotations
@@ -43,6 +45,8 @@ from sidewalk.run_folder import CHECKPOINT, GROUP_DIR, PREVIOUS_CHECKPOINT, SUMM
 PRESETS = ("fig5_discrete", "fig5_continuous", "fig6_discrete", "fig6_continuous", "fig8")
 SCALES = ("full", "quick")
 JOBS_FILE = "jobs.csv"
+ARGUMENTS_FILE = "reproduce.json"  # what an output root reproduces (scale, presets, overrides) and when it finished
+DEFAULT_PARENT = Path("results/sweeps")  # the default output roots: reproduce_<scale>_<time> in here
 
 
 @dataclasses.dataclass(frozen=True)
@@ -123,6 +127,40 @@ def job_state(folder: Path, job: Job) -> str:
     return "stale"
 
 
+def continue_command(args: argparse.Namespace, root: Path) -> str:
+    """The command that continues the reproduction of ``args`` in ``root``."""
+    presets = [] if args.presets == list(PRESETS) else ["--presets", *args.presets]
+    return shlex.join(["runners/reproduce.sh", args.scale, *args.overrides, "--processes", str(args.processes),
+                       "--out", str(root), *presets])
+
+
+def _arguments(args: argparse.Namespace) -> dict[str, Any]:
+    """What makes two reproductions the same: their scale, presets and overrides (not how many processes run them)."""
+    return {"scale": args.scale, "presets": sorted(args.presets), "overrides": list(args.overrides)}
+
+
+def output_root(args: argparse.Namespace) -> tuple[Path, bool]:
+    """Where the reproduction goes, and whether it continues one: ``--out``, else ``$REPRODUCE_DIR``, else the newest
+    unfinished reproduction of the same arguments in ``results/sweeps/`` (so that the same command continues it),
+    else a new ``results/sweeps/reproduce_<scale>_<time>``."""
+    given = args.out or os.environ.get("REPRODUCE_DIR")
+    if given:
+        return Path(given).resolve(), (Path(given) / ARGUMENTS_FILE).exists()
+    for folder in sorted(DEFAULT_PARENT.glob(f"reproduce_{args.scale}_*"), reverse=True):  # the newest first
+        recorded = folder / ARGUMENTS_FILE
+        if recorded.is_file() and json.loads(recorded.read_text()) == {**_arguments(args), "finished": None}:
+            return folder.resolve(), True
+    return (DEFAULT_PARENT / f"reproduce_{args.scale}_{time.strftime('%Y-%m-%d_%H-%M-%S')}").resolve(), False
+
+
+def record_arguments(args: argparse.Namespace, root: Path, finished: bool = False) -> None:
+    """Write ``root/reproduce.json``: the reproduction's arguments, and when it finished (every job and the report)."""
+    from sidewalk.run_folder import atomic_write
+
+    recorded = {**_arguments(args), "finished": _now() if finished else None}
+    atomic_write(root / ARGUMENTS_FILE, lambda tmp: tmp.write_text(json.dumps(recorded, indent=1)))
+
+
 def command(job: Job, root: Path, resume: bool) -> list[str]:
     preset_dir, subdir = (root / job.folder).parent, (root / job.folder).name
     return [sys.executable, str(RUNNERS_DIR / "main.py"), "-m", *job.overrides, f"hydra.sweep.dir={preset_dir}",
@@ -136,8 +174,8 @@ class Pool:
     """Runs jobs ``processes`` at a time, largest first; forwards SIGTERM and Ctrl-C to the running jobs (which
     checkpoint and stop) and starts no more."""
 
-    def __init__(self, root: Path, processes: int) -> None:
-        self.root, self.processes = root, processes
+    def __init__(self, root: Path, processes: int, continue_with: str) -> None:
+        self.root, self.processes, self.continue_with = root, processes, continue_with
         self.lock = threading.Lock()
         self.running: dict[str, subprocess.Popen] = {}
         self.stopping = False
@@ -163,8 +201,8 @@ class Pool:
             self.stopping = True
             for process in self.running.values():
                 process.send_signal(signal.SIGTERM)  # the job checkpoints at the end of its iteration
-        self._say(f"{signal.Signals(signum).name}: the running jobs checkpoint and stop; run the same command again "
-                  "to continue")
+        self._say(f"{signal.Signals(signum).name}: the running jobs checkpoint and stop; continue with:\n  "
+                  f"{self.continue_with}")
 
     def _worker(self, pending: list[Job], total: int) -> None:
         while True:
@@ -188,13 +226,12 @@ class Pool:
             self._say(f"{name}: already done")
             self._record({**row, "ended": row["started"]})
             return
-        if state == "stale":
-            folder.rename(folder.with_name(f"{folder.name}.abandoned-{time.strftime('%Y%m%d-%H%M%S')}"))
         folder.parent.mkdir(parents=True, exist_ok=True)
-        argv = command(job, self.root, resume=state == "resume")
+        # resume=true continues a job's folder: from its checkpoint, or (stopped before its first) from the start
+        argv = command(job, self.root, resume=state != "new")
         log = folder.with_name(folder.name + ".log")
-        self._say(f"{name}: {'resumed' if state == 'resume' else 'started'} ({job.replicas} seed(s) x {job.iterations} "
-                  f"iterations; log {log})")
+        what = {"new": "started", "resume": "resumed", "stale": "started again (stopped before its first checkpoint)"}
+        self._say(f"{name}: {what[state]} ({job.replicas} seed(s) x {job.iterations} iterations; log {log})")
         started = time.perf_counter()
         with open(log, "a") as out:
             out.write(f"$ {shlex.join(argv)}\n")
@@ -277,18 +314,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         for job in queue:
             print(f"{job.folder}\t{shlex.join(job.overrides)}")
         return 0
-    default = f"results/sweeps/reproduce_{args.scale}_{time.strftime('%Y-%m-%d_%H-%M-%S')}"
-    root = Path(args.out or os.environ.get("REPRODUCE_DIR") or default).resolve()
+    root, continuing = output_root(args)
     root.mkdir(parents=True, exist_ok=True)
-    print(f"reproduce: {len(queue)} jobs, {args.processes} at a time, into {root}", file=sys.stderr, flush=True)
+    record_arguments(args, root)
+    print(f"reproduce: {len(queue)} jobs, {args.processes} at a time, {'continuing' if continuing else 'into'} {root}",
+          file=sys.stderr, flush=True)
     started = time.perf_counter()
-    rows = Pool(root, args.processes).run(queue)
+    rows = Pool(root, args.processes, continue_command(args, root)).run(queue)
     failed = [row["job"] for row in rows if row["exit"] not in (0,)]
     unfinished = len(queue) - len(rows)
     print(f"reproduce: jobs took {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
     if unfinished or any(row["exit"] > 128 for row in rows):
-        print(f"reproduce: stopped with {unfinished} job(s) not started; run the same command again to continue",
-              file=sys.stderr)
+        print(f"reproduce: stopped with {unfinished} job(s) not started; continue with (or run the same command "
+              f"again):\n  {continue_command(args, root)}", file=sys.stderr)
         return 1
     report = subprocess.run([sys.executable, str(RUNNERS_DIR / "report.py"), str(root), "--out", str(root / "report")],
                             check=False)
@@ -296,6 +334,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"reproduce: failed: {' '.join(failed + (['report'] if report.returncode else []))} (see the jobs' "
               f"logs and {root / 'report' / 'report.md'})", file=sys.stderr)
         return 1
+    record_arguments(args, root, finished=True)
     print(f"reproduce: done: {root / 'report' / 'report.md'}", file=sys.stderr)
     return 0
 

@@ -333,9 +333,11 @@ def append_history(run_dir: Path, event: str, **details: Any) -> None:
 def check(run_dir: Path, config: dict[str, Any], resume: bool) -> tuple[int, int] | None:
     """Check that ``run_dir`` can start (or continue) the run of ``config``, before any compute; write nothing.
 
-    A new run refuses a folder that already holds one. A resume refuses a folder without a checkpoint and a config
-    that differs from the folder's in anything but a larger ``iterations``, naming every differing key. Returns
-    the budget's growth ``(old, new)`` of a resume that extends the run, else None.
+    A new run refuses a folder that already holds one. A resume refuses a folder that holds no run, a config that
+    differs from the folder's in anything but a larger ``iterations`` (naming every differing key), and a larger
+    ``iterations`` without a checkpoint to extend. A resume of a run stopped before its first checkpoint passes: it
+    trains again from the start (``has_checkpoint``). Returns the budget's growth ``(old, new)`` of a resume that
+    extends the run, else None.
     """
     saved = run_dir / CONFIG
     if not resume:
@@ -362,9 +364,14 @@ def check(run_dir: Path, config: dict[str, Any], resume: bool) -> tuple[int, int
             f"resume=true with a config that differs from {saved} in {len(changes)} key(s): {listed}. A resumed run "
             "must be the same experiment (only a larger iterations may change); start a new folder for a new one"
         )
-    if not any((run_dir / name).exists() for name in (CHECKPOINT, PREVIOUS_CHECKPOINT)):
-        raise RunFolderError(f"resume=true but {run_dir} has no checkpoint.{_finished_hint(run_dir)}")
+    if grown is not None and not has_checkpoint(run_dir):
+        raise RunFolderError(f"resume=true but {run_dir} has no checkpoint to extend.{_finished_hint(run_dir)}")
     return grown
+
+
+def has_checkpoint(run_dir: Path) -> bool:
+    """Whether ``run_dir`` holds a checkpoint generation to resume from (readable or not: ``load_checkpoint`` says)."""
+    return any((Path(run_dir) / name).exists() for name in (CHECKPOINT, PREVIOUS_CHECKPOINT))
 
 
 def record_start(run_dir: Path, config: dict[str, Any], resume: bool) -> None:
@@ -376,6 +383,8 @@ def record_start(run_dir: Path, config: dict[str, Any], resume: bool) -> None:
         atomic_write(run_dir / CONFIG, lambda tmp: OmegaConf.save(OmegaConf.create(config), tmp))
     if not resume:
         append_history(run_dir, "started", iterations=config.get("iterations"))
+    elif not has_checkpoint(run_dir):
+        append_history(run_dir, "restarted", iterations=config.get("iterations"), reason="no checkpoint yet")
     elif grown is not None:
         append_history(run_dir, "resumed", iterations={"from": grown[0], "to": grown[1]})
     else:

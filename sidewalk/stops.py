@@ -17,15 +17,21 @@ if TYPE_CHECKING:
     from sidewalk.algos.base import Algorithm
 
 
+def how_to_continue(continue_command: str | None) -> str:
+    """The end of an interruption's message: the command that continues the run (``runners/main.py`` knows it), or
+    what it must say."""
+    if continue_command is None:
+        return "resume=true on the run's folder continues it"
+    return f"continue with:\n  {continue_command}"
+
+
 class RunInterrupted(Exception):
     """SIGTERM, SIGUSR1 or SIGINT arrived; the run wrote a checkpoint at the end of ``iteration`` and stopped."""
 
-    def __init__(self, signum: int, iteration: int, run_dir: Path) -> None:
+    def __init__(self, signum: int, iteration: int, run_dir: Path, continue_command: str | None = None) -> None:
         self.signum, self.iteration = signum, iteration
-        super().__init__(
-            f"{signal.Signals(signum).name} received: checkpointed at iteration {iteration} in {run_dir}; "
-            "continue with the same command and resume=true"
-        )
+        super().__init__(f"{signal.Signals(signum).name} received: checkpointed at iteration {iteration} in {run_dir}; "
+                         f"{how_to_continue(continue_command)}")
 
 
 class LearnerDiverged(RuntimeError):
@@ -49,13 +55,15 @@ def divergence(algo: Algorithm, logs: dict[str, float], replica: int | None = No
 
 class StopSignals:
     """Record SIGTERM/SIGUSR1 (Slurm's pre-emption and submitit's notice) and a first Ctrl-C instead of dying, so
-    the loop can checkpoint at the end of the iteration; a second Ctrl-C raises ``KeyboardInterrupt`` at once.
-    Installed only in the main thread (Python's rule for handlers)."""
+    the loop can checkpoint at the end of the iteration; a second Ctrl-C stops the process at once, printing
+    ``continue_command`` (the command that continues the run from its last checkpoint). Installed only in the main
+    thread (Python's rule for handlers)."""
 
     SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGUSR1", "SIGINT") if hasattr(signal, name))
 
-    def __init__(self) -> None:
+    def __init__(self, continue_command: str | None = None) -> None:
         self.received: int | None = None
+        self.continue_command = continue_command
         self._previous: dict[int, Any] = {}
 
     def __enter__(self) -> Self:
@@ -68,7 +76,8 @@ class StopSignals:
         if signum == signal.SIGINT and self.received == signal.SIGINT:
             # The user insists: die of SIGINT now (exit 130). A KeyboardInterrupt raised inside TorchRL's loss
             # surfaced as an unrelated RuntimeError; atomic writes keep the folder whole either way.
-            print("Ctrl-C again: stopped at once; resume=true continues from the last checkpoint", file=sys.stderr)
+            print(f"\nCtrl-C again: stopped at once, from the last checkpoint on; "
+                  f"{how_to_continue(self.continue_command)}", file=sys.stderr, flush=True)
             signal.signal(signal.SIGINT, signal.SIG_DFL)
             os.kill(os.getpid(), signal.SIGINT)
         if signum == signal.SIGINT:

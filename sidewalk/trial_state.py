@@ -5,6 +5,7 @@ config, history and checkpoint in ``<run_dir>/.group/``."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,7 @@ from sidewalk.run_folder import (
     CONFIG,
     GROUP_DIR,
     METRICS,
+    SUMMARY,
     RunFolderError,
     append_history,
     atomic_write,
@@ -43,23 +45,47 @@ def replica_config(config: dict[str, Any], seed: int) -> dict[str, Any]:
     return {**config, "seed": seed, "replicas": 1}
 
 
-def check_folders(run_dir: Path, experiment: Experiment, config: dict[str, Any]) -> None:
+def state_dir(run_dir: Path, experiment: Experiment) -> Path:
+    """Where the trial keeps its config, history and checkpoint: ``run_dir``, or its ``.group/`` for several seeds."""
+    return Path(run_dir) if experiment.replicas == 1 else Path(run_dir) / GROUP_DIR
+
+
+def seed_dirs(run_dir: Path, experiment: Experiment) -> list[Path]:
+    """Each seed's run folder: ``run_dir`` itself for one seed, ``run_dir/seed<S>/`` each for several."""
+    if experiment.replicas == 1:
+        return [Path(run_dir)]
+    return [replica_dir(run_dir, experiment.seed + replica) for replica in range(experiment.replicas)]
+
+
+def check_folders(run_dir: Path, experiment: Experiment, config: dict[str, Any], in_sweep: bool = False) -> str:
     """Before any compute: every folder of the trial can start (or, ``resume=true``, continue) it; raises
     ``RunFolderError`` naming the folder and why. Several seeds: the group's folder holds the checkpoint, and each
-    seed's folder must be new, or (resuming) one of this group's."""
-    run_dir = Path(run_dir)
-    if experiment.replicas == 1:
-        check(run_dir, config, experiment.resume)
-        return
-    check(run_dir / GROUP_DIR, config, experiment.resume)
-    for replica in range(experiment.replicas):
-        seed = experiment.seed + replica
-        folder = replica_dir(run_dir, seed)
-        if experiment.resume:
-            if not (folder / CONFIG).exists():
+    seed's folder must be new, or (resuming) one of this group's.
+
+    Returns what the command does: ``"start"``; ``"resume"`` (from the checkpoint, or from the start when the run
+    stopped before its first); or ``"finished"`` (``resume=true`` on a run that finished at this budget: nothing to
+    do). In a sweep, ``resume=true`` continues every job, so a job's folder that holds no run yet (the interrupted
+    sweep never reached it) is a ``"start"``."""
+    run_dir, state = Path(run_dir), state_dir(run_dir, experiment)
+    never_started = in_sweep and not (state / CONFIG).exists()
+    resume = experiment.resume and not never_started
+    grown = check(state, config, resume)
+    folders = seed_dirs(run_dir, experiment)
+    if experiment.replicas > 1:
+        for replica, folder in enumerate(folders):
+            if not resume:
+                check(folder, replica_config(config, experiment.seed + replica), resume=False)
+            elif not (folder / CONFIG).exists():
                 raise RunFolderError(f"resume=true but {folder} is not a run folder of this group")
-            continue
-        check(folder, replica_config(config, seed), resume=False)
+    if not resume:
+        return "start"
+    finished = grown is None and all((folder / SUMMARY).exists() for folder in folders)
+    return "finished" if finished else "resume"
+
+
+def read_summaries(run_dir: Path, experiment: Experiment) -> list[dict[str, Any]]:
+    """The ``summary.json`` of each seed of a finished trial."""
+    return [json.loads((folder / SUMMARY).read_text()) for folder in seed_dirs(run_dir, experiment)]
 
 
 @dataclass

@@ -214,6 +214,39 @@ def test_resume_without_checkpoint_is_an_error(tmp_path):
     assert result.returncode == 2 and "keep_checkpoint=all" in result.stderr
 
 
+def test_what_resume_does_with_the_folder_it_finds(tmp_path):
+    from dataclasses import replace
+
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from sidewalk.config import validate
+    from sidewalk.run_folder import RunFolderError
+    from sidewalk.schema import register_schemas
+    from sidewalk.trial_state import check_folders
+
+    register_schemas()
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[*TINY, "replicas=2", "resume=true"])
+    experiment, config, job = validate(cfg), OmegaConf.to_container(cfg, resolve=True), tmp_path / "job"
+    # A sweep's job that the interrupted sweep never reached starts; a lone run refuses (a mistyped folder, likely).
+    assert check_folders(job, experiment, config, in_sweep=True) == "start"
+    with pytest.raises(RunFolderError, match="is not a run folder"):
+        check_folders(job, experiment, config)
+    # Stopped before its first checkpoint: it trains again from the start, in its folder.
+    for folder, seed in ((job / ".group", 0), (job / "seed0", 0), (job / "seed1", 1)):
+        folder.mkdir(parents=True)
+        OmegaConf.save(OmegaConf.create({**config, "seed": seed}), folder / "config.yaml")
+    assert check_folders(job, experiment, config, in_sweep=True) == check_folders(job, experiment, config) == "resume"
+    # Finished at this budget: nothing to do, in a sweep or alone.
+    for seed in (0, 1):
+        (job / f"seed{seed}" / "summary.json").write_text("{}")
+    assert check_folders(job, experiment, config, in_sweep=True) == check_folders(job, experiment, config) == "finished"
+    # A larger budget needs a checkpoint to extend.
+    with pytest.raises(RunFolderError, match="no checkpoint to extend"):
+        check_folders(job, replace(experiment, iterations=24), {**config, "iterations": 24})
+
+
 @pytest.mark.parametrize("launcher", ["basic", "joblib"])
 def test_a_failing_sweep_job_leaves_the_others_intact(tmp_path, launcher):
     sweep = tmp_path / "sweep"

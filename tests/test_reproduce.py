@@ -4,10 +4,14 @@ largest first) and how it reads a job's folder to skip, resume or restart it."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
+import time
+import types
 
 import pytest
 
-from sidewalk.reproduce import PRESETS, job_state, jobs, main, parse_options
+from sidewalk import reproduce
+from sidewalk.reproduce import PRESETS, Pool, job_state, jobs, main, parse_options
 from sidewalk.run_folder import CHECKPOINT, GROUP_DIR, SUMMARY
 
 
@@ -65,3 +69,27 @@ def test_a_jobs_folder_says_whether_to_skip_resume_or_restart_it(tmp_path):
     (alone / CHECKPOINT).unlink()
     (alone / SUMMARY).write_text("{}")
     assert job_state(alone, lone) == "done"
+
+
+def test_the_same_command_continues_an_unfinished_reproduction_and_a_stopped_pool_prints_it(tmp_path, monkeypatch,
+                                                                                          capsys):
+    # The pool stands in for the jobs: each command is stopped (Ctrl-C) in its first job.
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("REPRODUCE_DIR", raising=False)
+    seconds = itertools.count()  # the pool's clock: each folder name a second later, however fast the calls come
+    clock = types.SimpleNamespace(strftime=lambda pattern: f"2026-11-28_00-00-{next(seconds):02d}",
+                                  perf_counter=time.perf_counter)
+    monkeypatch.setattr(reproduce, "time", clock)
+    roots = []
+
+    def stopped_in_the_first_job(self, queue):
+        roots.append(self.root)
+        return [{"job": queue[0].folder, "exit": 130}]
+
+    monkeypatch.setattr(Pool, "run", stopped_in_the_first_job)
+    argv = ["quick", "--presets", "fig8", "eval_episodes=8", "--processes", "1"]
+    assert main(argv) == 1
+    assert f"--out {roots[0]}" in capsys.readouterr().err
+    assert main(argv) == 1
+    assert roots[1] == roots[0]  # the same command went on where the stopped one was, not into a new folder
+    assert main([*argv, "eval_every=2"]) == 1 and roots[2] != roots[0]  # other arguments: another reproduction

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import shutil
 import signal
 import subprocess
@@ -150,36 +151,79 @@ def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_one_leaves_no
     assert events[0] == "started" and events[-2:] == ["resumed", "finished"]
 
 
-def test_ctrl_c_checkpoints_exits_130_and_resumes_to_the_uninterrupted_metrics(tmp_path):
+def printed_command(stderr: str) -> list[str]:
+    """The command an interruption printed (the line after "continue with:"), run by this interpreter."""
+    lines = stderr.splitlines()
+    words = shlex.split(lines[lines.index(next(line for line in lines if line.endswith("continue with:"))) + 1])
+    return [sys.executable, *words[1:]] if words[0] == "python" else words
+
+
+def test_ctrl_c_checkpoints_exits_130_and_prints_the_command_that_resumes_to_the_uninterrupted_metrics(tmp_path):
     overrides = [*TINY, "iterations=40", "checkpoint_every=5", "eval_every=10", "noise=0.1"]
     whole = run_py("runners/main.py", *overrides, f"hydra.run.dir={tmp_path / 'whole'}", timeout=600)
     assert whole.returncode == 0, whole.stderr
-    stopped = tmp_path / "stopped"
-    process = subprocess.Popen([sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={stopped}"],
+    # A folder named by the time it starts, as the default one is: the same command again would start another.
+    process = subprocess.Popen([sys.executable, "runners/main.py", *overrides,
+                                f"hydra.run.dir={tmp_path}/runs/${{now:%Y-%m-%d_%H-%M-%S-%f}}"],
                                cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 300
-    while not (stopped / "checkpoint.pt").exists() and process.poll() is None and time.time() < deadline:
+    while not list(tmp_path.glob("runs/*/checkpoint.pt")) and process.poll() is None and time.time() < deadline:
         time.sleep(0.02)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=300)
     assert process.returncode == 130, stderr
-    assert "SIGINT received: checkpointed at iteration" in stderr and "resume=true" in stderr
-    assert "Traceback" not in stderr
+    assert "SIGINT received: checkpointed at iteration" in stderr and "Traceback" not in stderr
+    (stopped,) = tmp_path.glob("runs/*")
     at = read_torch_file(stopped / "checkpoint.pt")["iteration"]
     assert len(pd.read_csv(stopped / "metrics.csv")) == at < 40
-    resumed = run_py("runners/main.py", *overrides, f"hydra.run.dir={stopped}", "resume=true", timeout=600)
+    command = printed_command(stderr)
+    assert f"hydra.run.dir={stopped}" in command and command[-1] == "resume=true"
+    resumed = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
     assert resumed.returncode == 0, resumed.stderr
+    assert [path.name for path in tmp_path.glob("runs/*")] == [stopped.name]  # no second folder
     pd.testing.assert_frame_equal(pd.read_csv(stopped / "metrics.csv").drop(columns=WALL_CLOCK),
                                   pd.read_csv(tmp_path / "whole" / "metrics.csv").drop(columns=WALL_CLOCK))
 
 
-def test_a_second_ctrl_c_stops_at_once():
+def events(folder: Path) -> list[str]:
+    return [json.loads(line)["event"] for line in (folder / "history.jsonl").read_text().splitlines()]
+
+
+def test_an_interrupted_sweep_of_groups_continues_with_the_one_command_it_prints(tmp_path):
+    # Ctrl-C in the second of three jobs (each a group of two seeds): the first has finished, the second checkpoints,
+    # the third never starts. The printed command skips the first, resumes the second and starts the third.
+    overrides = [*TINY, "iterations=12", "checkpoint_every=2", "replicas=2", "noise=0,0.05,0.1"]
+    process = subprocess.Popen([sys.executable, "runners/main.py", "-m", *overrides,
+                                f"hydra.sweep.dir={tmp_path}/${{now:%Y-%m-%d_%H-%M-%S-%f}}"],  # as the default's
+                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 300
+    while not list(tmp_path.glob("*/1_*/.group/checkpoint.pt")) and process.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=300)
+    assert process.returncode == 130, stderr
+    (sweep,) = tmp_path.iterdir()
+    assert [job.name[0] for job in sorted(sweep.glob("[0-9]_*"))] == ["0", "1"]
+    command = printed_command(stderr)
+    assert "-m" in command and f"hydra.sweep.dir={sweep}" in command and command[-1] == "resume=true"
+    continued = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
+    assert continued.returncode == 0, continued.stderr
+    first, second, third = sorted(sweep.glob("[0-9]_*"))
+    assert events(first / ".group") == ["started", "finished"]  # skipped, not trained again
+    assert events(second / ".group") == ["started", "interrupted", "resumed", "finished"]
+    assert events(third / ".group") == ["started", "finished"]
+    summaries = [job / f"seed{seed}" / "summary.json" for job in (first, second, third) for seed in (0, 1)]
+    assert [json.loads(summary.read_text())["iterations"] for summary in summaries] == [12] * 6
+    assert not list(sweep.rglob("*error.txt"))
+
+
+def test_a_second_ctrl_c_stops_at_once_and_prints_the_command_that_continues():
     # The first Ctrl-C is recorded (the loop checkpoints at the end of its iteration); the second kills the process
     # by SIGINT where it stands, which the atomic writes (tests/test_experiment.py's kill -9) make safe.
     script = """
 import os, signal, time
 from sidewalk.stops import StopSignals
-with StopSignals() as signals:
+with StopSignals("python runners/main.py hydra.run.dir=results/runs/mine resume=true") as signals:
     os.kill(os.getpid(), signal.SIGINT); time.sleep(0.2)
     print("recorded", signals.received, flush=True)
     os.kill(os.getpid(), signal.SIGINT); time.sleep(2)
@@ -190,6 +234,7 @@ with StopSignals() as signals:
     assert result.stdout.split("\n")[0] == f"recorded {int(signal.SIGINT)}"
     assert "still running" not in result.stdout and result.returncode == -signal.SIGINT
     assert "Ctrl-C again: stopped at once" in result.stderr
+    assert printed_command(result.stderr)[1:] == ["runners/main.py", "hydra.run.dir=results/runs/mine", "resume=true"]
 
 
 @pytest.mark.parametrize(
