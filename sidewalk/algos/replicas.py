@@ -40,7 +40,7 @@ class _Replicated:
     def forward(self, *inputs: torch.Tensor) -> Any:
         # On a CPU each replica's slice runs as a lone unit does: vmap's batched kernels were slower than a loop here
         # for our conv stack and for MLPs on 2048 samples (``python -m sidewalk.bench.replicas --units``).
-        if next(self.parameters()).device.type != "cpu":
+        if inputs[0].device.type != "cpu":
             return self.forward_vmapped(*inputs)
         return self.forward_looped(*inputs)
 
