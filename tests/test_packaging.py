@@ -3,6 +3,7 @@ distribution name of its own that every install line of the repository uses."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import re
 import subprocess
@@ -152,3 +153,17 @@ def test_every_installed_command_answers_help(installed, tmp_path, command):
                           timeout=300, env={**os.environ, "PYTHONPATH": ""}, check=False)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.strip()
+
+
+def test_the_bench_help_gives_each_section_a_line_of_its_own_and_no_internal_revisions(capsys):
+    spec = importlib.util.spec_from_file_location("runner_bench", ROOT / "runners" / "bench.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    with pytest.raises(SystemExit) as done:
+        bench.main(["--help"])
+    assert done.value.code == 0
+    text = capsys.readouterr().out
+    starts = [line.split()[0] for line in text.splitlines() if line.startswith("  ") and line.split()]
+    assert [section for section in bench.SECTIONS if section not in starts] == [], text
+    commits = re.findall(r"\b(?=[0-9a-f]*[0-9])(?=[0-9a-f]*[a-f])[0-9a-f]{7,40}\b", text)
+    assert commits == [], f"--help names this repository's revisions, which a user's clone may lack: {commits}"
