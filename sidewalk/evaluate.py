@@ -1,4 +1,4 @@
-"""Evaluation: one episode in each of B batched worlds, and every metric of SPEC §6 per agent and overall.
+"""Evaluation: one episode in each of B batched worlds, and every metric below per agent and overall.
 
 Metric names (every tool reads these keys): ``success_rate``, ``collision_rate`` (any), ``agent_collision_rate``,
 ``wall_collision_rate``, ``timeout_rate``, ``return``, ``episode_length``, ``path_efficiency``,
@@ -326,7 +326,7 @@ def _group_metrics(record: EpisodeRecord, agents: list[int]) -> dict[str, float]
 
 
 def summarize(record: EpisodeRecord) -> dict[str, float]:
-    """Every metric of SPEC §6 as flat keys: overall, ``agent{i}/``, ``ego/`` and ``other/`` (ego views),
+    """Every metric of the module docstring as flat keys: overall, ``agent{i}/``, ``ego/`` and ``other/`` (ego views),
     ``team/success_rate``, and ``episodes``."""
     n_agents = record.returns.shape[1]
     metrics = _group_metrics(record, list(range(n_agents)))

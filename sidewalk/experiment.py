@@ -4,7 +4,7 @@
 
 - ``config.yaml`` and ``history.jsonl``: the resolved config and the run's events (``sidewalk.run_folder``);
 - ``metrics.csv``: one row per iteration (frames, wall clock, train metrics, eval metrics at eval iterations);
-- ``summary.json``: the final evaluation as flat SPEC §6 keys plus seed, the evaluation protocol, the absolute metric
+- ``summary.json``: the final evaluation as ``sidewalk.evaluate``'s flat keys plus seed, the evaluation protocol, the absolute metric
   (``policy.best.pt``, the best evaluation's policy, played on ten times the episodes), wall clock, versions, revision;
 - ``checkpoint.pt`` (and the generation before it, ``checkpoint.prev.pt``): everything needed to continue exactly
   where the run was (``resume=true``), kept after the run only with ``keep_checkpoint=all``;
