@@ -33,7 +33,6 @@ root_doc = "index"
 exclude_patterns = [
     "_build",
     "examples",  # scripts, linked from the guide
-    "scenarios/README.md",  # written by runners/render.py --gallery; included by gallery.md
 ]
 
 # MyST: anchors on headings down to ###, for [text](page.md#anchor) links.
@@ -87,9 +86,8 @@ html_theme_options = {
 
 # Pages link to files of the repository as GitHub reads them: relative to themselves. Sphinx knows only the
 # pages of docs/ as documents, so a link to another Markdown file (results/reference/report.md) becomes a file
-# link (MyST's `path:`), and a Markdown file included from elsewhere (results/reference/**/README.md, the
-# gallery's README) has its links rebased onto the including page, which must sit at the top of docs/: MyST
-# names only the including page's stem.
+# link (MyST's `path:`), and a Markdown file included from elsewhere (results/reference/**/README.md) has its links
+# rebased onto the including page, which must sit at the top of docs/: MyST names only the including page's stem.
 RELATIVE_TARGET = re.compile(r"\]\((?![a-z][a-z0-9+.-]*:|#|/)([^)\s]+)\)")
 
 

@@ -135,3 +135,13 @@ def test_the_docs_and_the_reports_cite_only_what_ships() -> None:
     for path in texts:
         cited = re.findall(r"\bSPEC\b[^\n]{0,20}", path.read_text())
         assert not cited, f"{path.relative_to(ROOT)} cites the unshipped SPEC: {cited}"
+
+
+def test_the_gallery_reads_on_github_as_on_the_site() -> None:
+    # GitHub shows a MyST directive as a literal block: the gallery links to the stills' page (a page of the site too).
+    text = (DOCS / "gallery.md").read_text()
+    assert "```{" not in text, "docs/gallery.md holds a MyST directive, which GitHub shows as a code block"
+    targets = re.findall(r"\]\((?![a-z][a-z0-9+.-]*:|#)([^)\s]+)\)", text)
+    assert "scenarios/README.md" in targets
+    for target in targets:
+        assert (DOCS / target).exists(), f"docs/gallery.md links to {target}: no such file"
