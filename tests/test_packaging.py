@@ -69,8 +69,9 @@ def fresh_venv(env_dir: Path) -> Path:
 def installed(wheel, tmp_path_factory) -> Path:
     """A fresh virtual environment with the wheel; its dependencies come from the running environment."""
     python = fresh_venv(tmp_path_factory.mktemp("venv"))
+    # No PYTHONPATH: a clone on it shows pip the egg-info the wheel's build left there, as this package installed.
     subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "--no-deps", "-q", str(wheel)],
-                   check=True, capture_output=True, text=True, timeout=300)
+                   check=True, capture_output=True, text=True, timeout=300, env={**os.environ, "PYTHONPATH": ""})
     return python.parent
 
 
