@@ -644,7 +644,7 @@ def test_fig10_panel_titles_keep_to_their_panels(monkeypatch, tmp_path):
     """Three continuous panels abreast under the reference's longest titles: no title runs into its neighbour's."""
     from types import SimpleNamespace
 
-    import sidewalk.report.figures as figures
+    from sidewalk.report import figures
 
     def panel(label: str, outcomes: list[str]):
         steps, episodes = 20, len(outcomes)
@@ -654,7 +654,8 @@ def test_fig10_panel_titles_keep_to_their_panels(monkeypatch, tmp_path):
         layout = SimpleNamespace(length_m=4.0, width_m=3.0, boxes=[], goals=[(3.7, 1.5), (0.3, 1.5)])
         replay_ = SimpleNamespace(record=SimpleNamespace(trajectories=paths, info=info, ego=0), layout=layout,
                                   domain="continuous", run=SimpleNamespace(seed=0), matches_summary=True)
-        condition = SimpleNamespace(ident="C8", label=label, agents=lambda: [("ego", "TRPO (ego)"), ("other", "prm (other)")])
+        agents = [("ego", "TRPO (ego)"), ("other", "prm (other)")]
+        condition = SimpleNamespace(ident="C8", label=label, agents=lambda: agents)
         return condition, replay_
 
     long_label = "continuous: TRPO vs prm, shaped [0], ε=0.01, explicit reward, iterations=5000"

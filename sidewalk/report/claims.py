@@ -1,4 +1,4 @@
-"""The paper's findings (its §6.2, "Results") held against a set of runs: a verdict per claim and the numbers behind it.
+"""The paper's findings (its §6.2) held against a set of runs: a verdict per claim and the numbers behind it.
 
 Each check reads the same conditions the report's paper figures are drawn from (``figure_panels``), so a verdict
 is always about the curves shown above it in ``report.md``. The verdict is one of ``VERDICTS``, decided by the
@@ -427,8 +427,8 @@ def explicit_learns_better(panel: Sequence[Condition]) -> list[Verdict]:
     ]
 
 
-# The paper's §6.2, claim by claim: (figure, the paper figure whose panels the check reads, the check, the domains the paper
-# makes the claim for, what to run for it)
+# The paper's §6.2, claim by claim: (figure, the paper figure whose panels the check reads, the check, the domains
+# the paper makes the claim for, what to run for it)
 CLAIMS = (
     ("Fig. 5/7", PAPER_FIGURES[0], avoids_random, ("discrete",), "fig5_discrete"),
     ("Fig. 5/7", PAPER_FIGURES[0], dijkstra_yields, ("discrete",), "fig5_discrete"),
