@@ -5,10 +5,13 @@ python -m sphinx -W --keep-going -b html docs build/docs     # as tests/test_doc
 
 from __future__ import annotations
 
+import enum
 import importlib
+import importlib.util
 import os
 import re
 import sys
+import types
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -30,7 +33,6 @@ root_doc = "index"
 exclude_patterns = [
     "_build",
     "examples",  # scripts, linked from the guide
-    "scenarios/README.md",  # written by runners/render.py --gallery; included by gallery.md
 ]
 
 # MyST: anchors on headings down to ###, for [text](page.md#anchor) links.
@@ -41,6 +43,36 @@ autodoc_default_options = {"members": True, "show-inheritance": True}
 autodoc_inherit_docstrings = False
 autodoc_typehints = "description"
 autodoc_member_order = "bysource"
+# The API page's modules that import an optional package: PettingZoo is an extra, BenchMARL is installed apart
+# (docs/guide/benchmarl.md). Where one is missing, autodoc imports those modules against Sphinx's mocks of it.
+autodoc_mock_imports = [name for name in ("benchmarl", "pettingzoo") if importlib.util.find_spec(name) is None]
+
+
+def benchmarl_stand_in() -> None:
+    """For a build without BenchMARL: the names ``sidewalk.interop.benchmarl`` iterates or assigns into at import
+    (it registers its tasks), which Sphinx's mocks cannot stand in for: the task registry and the task bases,
+    ``Task`` an Enum numbering its members as BenchMARL's does. Sphinx's mocks serve the rest of BenchMARL."""
+
+    class Task(enum.Enum):
+        def __new__(cls, *args):
+            member = object.__new__(cls)
+            member._value_ = len(cls.__members__) + 1
+            return member
+
+    class TaskClass:
+        pass
+
+    root, environments, common = (types.ModuleType(name) for name in
+                                  ("benchmarl", "benchmarl.environments", "benchmarl.environments.common"))
+    Task.__module__ = TaskClass.__module__ = common.__name__
+    common.Task, common.TaskClass = Task, TaskClass
+    environments.common, environments.tasks, environments.task_config_registry = common, [], {}
+    root.environments, root.__path__ = environments, []  # a package: its other modules come from the mocks
+    sys.modules.update({module.__name__: module for module in (root, environments, common)})
+
+
+if "benchmarl" in autodoc_mock_imports:
+    benchmarl_stand_in()
 
 html_theme = "alabaster"
 html_title = f"sidewalk {release}"
@@ -54,9 +86,8 @@ html_theme_options = {
 
 # Pages link to files of the repository as GitHub reads them: relative to themselves. Sphinx knows only the
 # pages of docs/ as documents, so a link to another Markdown file (results/reference/report.md) becomes a file
-# link (MyST's `path:`), and a Markdown file included from elsewhere (results/reference/**/README.md, the
-# gallery's README) has its links rebased onto the including page, which must sit at the top of docs/: MyST
-# names only the including page's stem.
+# link (MyST's `path:`), and a Markdown file included from elsewhere (results/reference/**/README.md) has its links
+# rebased onto the including page, which must sit at the top of docs/: MyST names only the including page's stem.
 RELATIVE_TARGET = re.compile(r"\]\((?![a-z][a-z0-9+.-]*:|#|/)([^)\s]+)\)")
 
 

@@ -1,44 +1,6 @@
-"""Benchmarks of the Sidewalk package, printed as tables.
+"""Benchmarks of the Sidewalk package, printed as tables: ``python runners/bench.py --help`` lists the sections
+(``SECTION_HELP``) and how to call them; docs/guide/benchmarks.md gives the figures they measured.
 
-    python runners/bench.py                    # the env, planning and views sections
-    python runners/bench.py env --num-envs 4096 --threads 1
-    python runners/bench.py planning views
-    python runners/bench.py planning --num-envs 128 1024 --baseline ../other-checkout   # ms per plan, this ÷ that
-    python runners/bench.py training           # ~1 h: time to 3 evaluations >= 0.9, ours vs Stable-Baselines3 DQN
-    python runners/bench.py learners --opponent prm    # hours: our TRPO/PPO vs sb3-contrib TRPO / SB3 PPO
-    python runners/bench.py geometry           # ~6 min: what the continuous geometry allows (untrained success, ...)
-    python runners/bench.py budget --baseline f082f2a   # ~6 min: per-iteration time budget, beside a revision
-    python runners/bench.py reproduce --baseline 4549d80  # ~15 min: runners/reproduce.sh full's wall-clock, estimated
-    python runners/bench.py scenarios --agents 2 4 8 16   # ~3 min: env-steps/s at N agents, ours vs VMAS navigation
-    python runners/bench.py multiagent         # ~12 min: IPPO training frames/s, ours vs TorchRL's VMAS example
-    python runners/bench.py groups             # ~25 min: 5 seeds as one process (replicas=5) vs one after another
-    python runners/bench.py image_ppo          # ~3 min: s/iteration of grid IPPO/MAPPO, image vs vector settings
-    python runners/bench.py benchmarl --bm-tasks sidewalk_continuous   # hours: BenchMARL's learners on our tasks
-
-Sections: ``env`` (env-steps/s of both domains beside VMAS give_way), ``planning`` (µs per plan per world of the
-scripted planners beside scipy; with ``--baseline``, a checkout directory or revision, CPU ms per plan of both
-trees' planners and their ratio: ``--repeats``, ``--seconds``), ``views`` (env-steps/s of the learner views with
-their opponents), ``training`` (training time to three evaluations in a row with ego success ≥ 0.9 against
-Dijkstra at noise 0.1, frames/s and cost per gradient step, our DQN beside SB3's; not run by default),
-``learners`` (final ego success of our TRPO and PPO beside sb3-contrib's TRPO and SB3's PPO on the continuous
-sidewalk at equal seeds and frames; not run by default), ``geometry`` (untrained-policy success, scripted returns
-and the PRM agent passing an ego, at the continuous defaults; not run by default), ``budget`` (where an
-iteration's time goes in the default DQN run and the TRPO run, ``runners/main.py`` end to end, optionally beside
-another revision: ``--baseline``, ``--seeds``, ``--runs``, ``--trpo-iterations``; not run by default),
-``reproduce`` (the wall-clock of ``runners/reproduce.sh full`` estimated from measured per-iteration costs,
-optionally beside another revision: ``--baseline``, ``--processes``, ``--probe-iterations``, ``--probe-period``;
-not run by default), ``multiagent`` (training frames/s of our IPPO self-play on the continuous sidewalk at 4096
-worlds and 1 and 2 threads beside TorchRL's MAPPO/IPPO example on VMAS ``navigation``, two agents, the same networks,
-batch, epochs and minibatches: ``--ma-steps``, ``--ma-iterations``, ``--ma-warmup``, ``--ma-learners``; not run by
-default), ``groups`` (the wall-clock of 5 seeds trained as one process, ``replicas=5``, beside the same runs one
-after another, TRPO continuous and DQN grid: ``--setups``, ``--replicas``, ``--iterations``, ``--full``; not run by
-default), ``image_ppo`` (seconds per iteration of grid IPPO and MAPPO at their image settings beside the vector
-settings, interleaved in one process; not run by default), ``benchmarl`` (BenchMARL's algorithms at their defaults on
-the sidewalk's BenchMARL tasks, final team success on 256 fresh worlds, a resumable table: ``--bm-algorithms``,
-``--bm-tasks``, ``--bm-seeds``, ``--bm-frames``, ``--bm-out``, ``--bm-grid-observation``, ``--bm-no-state``;
-docs/guide/benchmarl.md; not run by default). Flags after the sections that are not the ones below go
-to the sections that take flags of their own (``learners``: ``--opponent``, ``--frames``, ``--seeds``,
-``--setups``, ``--learners``, ``--noise``, ``--eval-episodes``; see ``python -m sidewalk.bench.learners -h``).
 A section module has ``run(**kwargs) -> list[dict]``; it may add ``parse_options(argv) -> kwargs`` (its own flags,
 checked before any section runs) and ``format_rows(rows) -> str`` (its own printout).
 """
@@ -69,10 +31,43 @@ SECTIONS = {
     "benchmarl": "sidewalk.bench.benchmarl_tasks",
 }
 DEFAULT_SECTIONS = ("env", "planning", "views")
+# --help's list: a line per section, the time at its defaults, what it measures and its own flags.
+SECTION_HELP = """\
+sections (env, planning and views when none is named; times at each section's defaults):
+  env         seconds     env-steps/s of both domains, beside VMAS give_way (with the bench extra)
+  planning    seconds     µs per plan per world of the scripted planners, beside scipy's Dijkstra;
+                          --baseline DIR|REVISION: ms per plan of both trees and their ratio (--repeats, --seconds)
+  views       seconds     env-steps/s of the learner views with their opponents
+  training    ~1 h        time until our DQN's greedy policy succeeds on 3 evaluations in a row (>= 0.9)
+                          against Dijkstra at noise 0.1, beside Stable-Baselines3's DQN
+  learners    hours       final ego success of our TRPO and PPO beside sb3-contrib's TRPO and SB3's PPO
+                          (--opponent, --frames, --seeds, --setups, --learners, --noise, --eval-episodes)
+  geometry    ~6 min      what the continuous geometry allows: untrained success, scripted returns, room to pass
+  budget      ~6 min      where an iteration's time goes in the default DQN and the TRPO runs
+                          (--baseline REVISION, --seeds, --runs, --trpo-iterations)
+  reproduce   ~15 min     runners/reproduce.sh full's wall-clock, estimated from measured iterations
+                          (--baseline REVISION, --processes, --probe-iterations, --probe-period)
+  scenarios   ~3 min      env-steps/s at N agents, ours beside VMAS navigation (--agents)
+  multiagent  ~12 min     IPPO training frames/s at 4096 worlds, ours beside TorchRL's example on VMAS
+                          (--ma-steps, --ma-iterations, --ma-warmup, --ma-learners)
+  groups      ~25 min     R seeds trained as one process (replicas=R) beside one after another
+                          (--setups, --replicas, --iterations, --full)
+  image_ppo   ~3 min      s/iteration of grid IPPO and MAPPO, image beside vector settings
+  benchmarl   hours       BenchMARL's learners on the sidewalk's tasks, a resumable table (docs/guide/benchmarl.md)
+                          (--bm-algorithms, --bm-tasks, --bm-seeds, --bm-frames, --bm-out, --bm-grid-observation,
+                          --bm-no-state)
+
+A section's own flags follow the section names. Examples:
+  %(prog)s                                   # env, planning and views
+  %(prog)s env --num-envs 4096 --threads 1
+  %(prog)s planning --baseline ../other-checkout
+  %(prog)s learners --opponent prm --seeds 0 1 2
+"""
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Sidewalk benchmarks", epilog=__doc__)
+    parser = argparse.ArgumentParser(description="Benchmarks of the Sidewalk package, printed as tables.",
+                                     epilog=SECTION_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument(
         "sections", nargs="*", default=list(DEFAULT_SECTIONS), help=f"any of: {', '.join(SECTIONS)}"
     )

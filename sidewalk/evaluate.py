@@ -1,4 +1,4 @@
-"""Evaluation: one episode in each of B batched worlds, and every metric of SPEC §6 per agent and overall.
+"""Evaluation: one episode in each of B batched worlds, and every metric below per agent and overall.
 
 Metric names (every tool reads these keys): ``success_rate``, ``collision_rate`` (any), ``agent_collision_rate``,
 ``wall_collision_rate``, ``timeout_rate``, ``return``, ``episode_length``, ``path_efficiency``,
@@ -17,7 +17,9 @@ Manhattan cells, the shortest grid path; continuous: metres to the edge of the g
 between two agents in the world during the episode (grid: cells, Euclidean; continuous: centre to centre, m),
 averaged over episodes, counting only agents present in the world (``("world", "present")``). ``episodes`` is the
 number of worlds, ``distinct_episodes`` how many different trajectories they played: at noise 0 in a fixed layout
-every world plays the same episode, so a rate is one episode's 0 or 1 and only seeds give it a spread.
+every world plays the same episode, so a rate is one episode's 0 or 1 and only seeds give it a spread. Such an
+evaluation plays that episode once, in one world, and counts it for every world (``run_episodes``'s ``one_world``):
+the same record, for the compute of one world.
 
 The scenarios' coordination metrics (paper §7): ``makespan`` is the steps until the last agent arrived, over
 episodes where every agent did (NaN if none did); ``deadlock_rate`` the fraction of episodes that timed out while no
@@ -30,7 +32,9 @@ stepping aside and back; continuous: within ``WAIT_M`` m).
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -84,6 +88,7 @@ def run_episodes(
     seed: int | None = None,
     record_trajectories: int = 0,
     deterministic: bool = True,
+    one_world: Callable[[], EnvBase] | None = None,
 ) -> EpisodeRecord:
     """Play one episode in every world of ``env`` (an ego or centralized view, B worlds = B episodes).
 
@@ -91,11 +96,34 @@ def run_episodes(
     (``act_on_distinct``); a policy that samples whatever the context (a collection policy) needs
     ``deterministic=False``, so that every world draws its own action. ``None`` plays uniformly random actions.
     ``seed`` reseeds the env first, so repeated evaluations see the same noise and opponent draws.
+
+    ``one_world`` builds ``env`` with one world (the same config and seed). Where every world of ``env`` starts
+    alike and ``policy`` is deterministic, that world plays the episode alone, and if neither its reset nor a step
+    drew a random number, every world of ``env`` plays it too: it is counted for all of them (the record is the one
+    the B worlds give). At the first draw the B worlds play instead, as without ``one_world``.
     """
     if seed is not None:
         env.set_seed(seed)
     td = env.reset()
+    if one_world is not None and seed is not None and deterministic and policy is not None and _worlds_alike(td):
+        record = _played_once(one_world, policy, seed, td, record_trajectories, env.device)
+        if record is not None:
+            return record
     tally = _EpisodeTally.begin(env, td.get("world"), record_trajectories)
+    _play(env, policy, td, tally, deterministic)
+    return tally.record(ego=getattr(env, "ego", None))
+
+
+def _play(
+    env: EnvBase,
+    policy: TensorDictModuleBase | None,
+    td: TensorDictBase,
+    tally: _EpisodeTally,
+    deterministic: bool,
+    draws: _RandomDraws | None = None,
+) -> bool:
+    """Step ``env`` from its reset ``td`` until every world's episode has ended, each step added to ``tally``; with
+    ``draws``, stop at the first step that drew a random number and return False."""
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for step in range(env.core.params.max_steps + 1):
             if policy is None:
@@ -103,12 +131,87 @@ def run_episodes(
             else:
                 td = act_on_distinct(policy, td, ~tally.finished) if deterministic else policy(td)
             td = env.step(td)
+            if draws is not None and draws.happened():
+                return False
             nxt = td.get("next")
             tally.add_step(step, nxt.get("world"), nxt.get("done").squeeze(-1))
             if bool(tally.finished.all()):
                 break
             td = step_mdp(td)
-    return tally.record(ego=getattr(env, "ego", None))
+    return True
+
+
+def _worlds_alike(td: TensorDictBase) -> bool:
+    """Whether the worlds of ``td`` (batch (B,), B > 1) all hold what the first one does, entry for entry."""
+    values = list(td.values(include_nested=True, leaves_only=True))
+    return td.batch_size[0] > 1 and all(torch.is_tensor(value) and bool((value == value[:1]).all()) for value in values)
+
+
+class _RandomDraws:
+    """Whether a random number was drawn since it was made: from ``env``'s generators, through which the envs, views
+    and opponents draw everything, or from torch's global ones (a policy that samples)."""
+
+    def __init__(self, env: EnvBase) -> None:
+        self.generators = [*env.core.generators, *_global_generators(env.device)]
+        self.states = [generator.get_state() for generator in self.generators]
+
+    def happened(self) -> bool:
+        return any(not torch.equal(g.get_state(), state) for g, state in zip(self.generators, self.states))
+
+
+def _global_generators(device: torch.device | str) -> list[torch.Generator]:
+    """torch's global generators a computation on ``device`` may draw from."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        return [torch.default_generator, torch.cuda.default_generators[device.index or torch.cuda.current_device()]]
+    return [torch.default_generator]
+
+
+def _played_once(
+    one_world: Callable[[], EnvBase],
+    policy: TensorDictModuleBase,
+    seed: int,
+    td: TensorDictBase,
+    record_trajectories: int,
+    device: torch.device | str,
+) -> EpisodeRecord | None:
+    """The record of the B worlds (on ``device``) whose alike reset is ``td``, from one world's episode; None where
+    that world resets otherwise or draws a random number. torch's global generators are left as they were."""
+    kept = [(generator, generator.get_state()) for generator in _global_generators(device)]
+    try:
+        env = one_world()
+        env.set_seed(seed)
+        draws = _RandomDraws(env)
+        alone = env.reset()
+        if draws.happened() or not _same_world(alone, td):
+            return None
+        tally = _EpisodeTally.begin(env, alone.get("world"), min(record_trajectories, 1))
+        if not _play(env, policy, alone, tally, deterministic=True, draws=draws):
+            return None
+        return _for_every_world(tally.record(ego=getattr(env, "ego", None)), td.batch_size[0], record_trajectories)
+    finally:
+        for generator, state in kept:
+            generator.set_state(state)
+
+
+def _same_world(alone: TensorDictBase, td: TensorDictBase) -> bool:
+    """Whether ``alone`` (one world) holds what the first world of ``td`` does, entry for entry."""
+    keys = set(alone.keys(include_nested=True, leaves_only=True))
+    if keys != set(td.keys(include_nested=True, leaves_only=True)):
+        return False
+    return all(torch.equal(alone.get(key), td.get(key)[:1]) for key in keys)
+
+
+def _for_every_world(record: EpisodeRecord, worlds: int, record_trajectories: int) -> EpisodeRecord:
+    """``record`` of one world's episode as the record of ``worlds`` worlds that all played it."""
+    changes: dict = {"info": {key: np.repeat(value, worlds, axis=0) for key, value in record.info.items()}}
+    for entry in dataclasses.fields(record):
+        value = getattr(record, entry.name)
+        if entry.name == "trajectories" and value is not None:  # (T, k, N, 2): the first k worlds
+            changes[entry.name] = np.repeat(value, min(record_trajectories, worlds), axis=1)
+        elif entry.name != "trajectories" and isinstance(value, np.ndarray):  # (episodes, ...)
+            changes[entry.name] = np.repeat(value, worlds, axis=0)
+    return dataclasses.replace(record, **changes)
 
 
 def _positions(world: TensorDictBase) -> torch.Tensor:
@@ -326,7 +429,7 @@ def _group_metrics(record: EpisodeRecord, agents: list[int]) -> dict[str, float]
 
 
 def summarize(record: EpisodeRecord) -> dict[str, float]:
-    """Every metric of SPEC §6 as flat keys: overall, ``agent{i}/``, ``ego/`` and ``other/`` (ego views),
+    """Every metric of the module docstring as flat keys: overall, ``agent{i}/``, ``ego/`` and ``other/`` (ego views),
     ``team/success_rate``, and ``episodes``."""
     n_agents = record.returns.shape[1]
     metrics = _group_metrics(record, list(range(n_agents)))
@@ -355,11 +458,16 @@ def summarize(record: EpisodeRecord) -> dict[str, float]:
 
 
 def evaluate(
-    env: EnvBase, policy: TensorDictModuleBase | None, *, seed: int | None = None, deterministic: bool = True
+    env: EnvBase,
+    policy: TensorDictModuleBase | None,
+    *,
+    seed: int | None = None,
+    deterministic: bool = True,
+    one_world: Callable[[], EnvBase] | None = None,
 ) -> dict[str, float]:
     """Metrics of one episode in each of ``env``'s worlds under ``policy`` (see ``summarize``; ``deterministic``
-    as in ``run_episodes``)."""
-    return summarize(run_episodes(env, policy, seed=seed, deterministic=deterministic))
+    and ``one_world`` as in ``run_episodes``)."""
+    return summarize(run_episodes(env, policy, seed=seed, deterministic=deterministic, one_world=one_world))
 
 
 def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:

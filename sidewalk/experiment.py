@@ -4,8 +4,9 @@
 
 - ``config.yaml`` and ``history.jsonl``: the resolved config and the run's events (``sidewalk.run_folder``);
 - ``metrics.csv``: one row per iteration (frames, wall clock, train metrics, eval metrics at eval iterations);
-- ``summary.json``: the final evaluation as flat SPEC §6 keys plus seed, the evaluation protocol, the absolute metric
-  (``policy.best.pt``, the best evaluation's policy, played on ten times the episodes), wall clock, versions, revision;
+- ``summary.json``: the final evaluation as ``sidewalk.evaluate``'s flat keys plus seed, the evaluation protocol, the
+  absolute metric (``policy.best.pt``, the best evaluation's policy, played on ten times the episodes), wall clock,
+  versions, revision;
 - ``checkpoint.pt`` (and the generation before it, ``checkpoint.prev.pt``): everything needed to continue exactly
   where the run was (``resume=true``), kept after the run only with ``keep_checkpoint=all``;
 - ``policy.pt``: the learner's networks and the world they learned in (written at every checkpoint and at the end),
@@ -100,11 +101,13 @@ def make_view(experiment: Experiment, num_envs: int, seed: int, env_params: Any 
     )
 
 
-def make_eval_view(experiment: Experiment, seed: int | None = None) -> EnvBase:
-    """The env an evaluation plays: ``eval_episodes`` worlds drawn as the experiment's evaluation protocol says
-    (``Experiment.eval_env_params``), seeded from the evaluation's own stream (``seed``: the experiment's)."""
+def make_eval_view(experiment: Experiment, seed: int | None = None, worlds: int | None = None) -> EnvBase:
+    """The env an evaluation plays: ``eval_episodes`` worlds (or ``worlds``) drawn as the experiment's evaluation
+    protocol says (``Experiment.eval_env_params``), seeded from the evaluation's own stream (``seed``: the
+    experiment's)."""
     seed = experiment.seed if seed is None else seed
-    return make_view(experiment, experiment.eval_episodes, seed + EVAL_SEED_OFFSET, env_params=experiment.eval_env_params)
+    worlds = experiment.eval_episodes if worlds is None else worlds
+    return make_view(experiment, worlds, seed + EVAL_SEED_OFFSET, env_params=experiment.eval_env_params)
 
 
 def collector_frames_per_batch(experiment: Experiment) -> int:
@@ -263,7 +266,8 @@ class Trial:
             rng = capture_rng()  # evaluation must not shift the training stream
             eval_started = time.perf_counter()
             learner = parts.learners.learner(replica)
-            metrics = evaluate(run.eval_env, learner.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+            metrics = evaluate(run.eval_env, learner.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET,
+                               one_world=lambda: make_eval_view(exp, worlds=1))
             eval_ended = time.perf_counter()
             restore_rng(rng)
             state.keep_if_best(metrics, lambda: self._policy_state(parts, replica))
@@ -349,7 +353,8 @@ class Trial:
         final = {key[len("eval/"):]: value for key, value in rows[-1].items() if key.startswith("eval/")}
         if not final:  # no periodic evaluation (eval_every=0): the final one is also the best
             learner = parts.learners.learner(replica)
-            final = evaluate(run.eval_env, learner.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET)
+            final = evaluate(run.eval_env, learner.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET,
+                             one_world=lambda: make_eval_view(exp, worlds=1))
             state.keep_if_best(final, lambda: self._policy_state(parts, replica))
         training_cost = rows[-1].get("train/cumulative_cost", 0.0) if rows else 0.0
         frames = state.iteration * parts.frames_per_batch
@@ -384,7 +389,8 @@ class Trial:
         learner.load_policy_state_dict(best.policy)
         seed = exp.seed + ABSOLUTE_SEED_OFFSET
         env = make_view(exp, ABSOLUTE_EPISODES * exp.eval_episodes, seed, env_params=exp.eval_env_params)
-        metrics = evaluate(env, learner.evaluation_policy(), seed=seed)
+        metrics = evaluate(env, learner.evaluation_policy(), seed=seed,
+                           one_world=lambda: make_view(exp, 1, seed, env_params=exp.eval_env_params))
         return {"iteration": best.iteration, "frames": best.iteration * parts.frames_per_batch, **metrics}
 
     def _policy_state(self, parts: Parts, replica: int) -> dict[str, Any]:

@@ -1,9 +1,12 @@
-"""Evaluation computes the policy once per distinct input and gives what the plain batched loop gives."""
+"""Evaluation computes the policy once per distinct input, plays one world for all where every world plays the same
+episode, and gives what the plain batched loop gives."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
@@ -96,3 +99,40 @@ def test_distinct_episodes_says_how_many_different_episodes_an_evaluation_played
     metrics = evaluation.evaluate(view, policy, seed=11)
     # noise 0 in the fixed sidewalk: 16 worlds, one episode (its rates are 0 or 1); noise: every world its own
     assert (metrics["episodes"], metrics["distinct_episodes"]) == (16, distinct)
+
+
+ONCE_CASES = {  # overrides: whether one world plays for all (every world starts alike and nothing draws)
+    "grid-centralized": (("env=discrete", "opponent=centralized", "eval=nominal"), True),
+    "continuous-prm": (("env=continuous", "opponent=prm", "eval=nominal"), True),
+    "grid-selfplay": (("env=discrete", "opponent=self", "algo=iql", "eval=nominal"), True),
+    "grid-dijkstra-random-ties": (("env=discrete", "opponent=dijkstra", "eval=nominal"), False),  # draws each step
+    "grid-noise": (("env=discrete", "opponent=centralized", "eval=nominal", "noise=0.2"), False),
+    "grid-perturbed": (("env=discrete", "opponent=centralized", "eval=perturbed"), False),  # worlds start apart
+}
+
+
+@pytest.mark.parametrize("case", list(ONCE_CASES))
+def test_one_world_plays_for_all_exactly_where_every_world_plays_the_same_episode(case, monkeypatch):
+    overrides, once = ONCE_CASES[case]
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        exp = validate(compose(config_name="config", overrides=["logger=none", *overrides]))
+    torch.manual_seed(0)
+    policy = LEARNERS[exp.algo.name](exp.algo, TransformedEnv(make_view(exp, 8, 0), RewardSum())).evaluation_policy()
+    view = make_view(exp, 32, 7, env_params=exp.eval_env_params)
+    plain = evaluation.run_episodes(view, policy, seed=11, record_trajectories=3)
+    steps, built = [], []
+    step = view.step
+    monkeypatch.setattr(view, "step", lambda td: steps.append(1) or step(td))
+
+    def one_world():
+        built.append(make_view(exp, 1, 7, env_params=exp.eval_env_params))
+        return built[-1]
+
+    global_rng = torch.get_rng_state()
+    record = evaluation.run_episodes(view, policy, seed=11, record_trajectories=3, one_world=one_world)
+    assert torch.equal(torch.get_rng_state(), global_rng)
+    assert (not steps) == once and len(built) == (0 if case == "grid-perturbed" else 1)  # perturbed: no world built
+    fast, slow = evaluation.summarize(record), evaluation.summarize(plain)
+    assert fast.keys() == slow.keys()
+    assert all(fast[key] == slow[key] or (math.isnan(fast[key]) and math.isnan(slow[key])) for key in fast), case
+    np.testing.assert_array_equal(record.trajectories, plain.trajectories)

@@ -1,10 +1,14 @@
-"""The wheel is a whole product: it carries the Hydra configs and the commands, and runs from any folder."""
+"""The wheel is a whole product: it carries the Hydra configs and the commands, and runs from any folder, under a
+distribution name of its own that every install line of the repository uses."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import re
 import subprocess
 import sys
+import tomllib
 import venv
 import zipfile
 from pathlib import Path
@@ -15,6 +19,20 @@ ROOT = Path(__file__).resolve().parents[1]
 COMMANDS = ("sidewalk-train", "sidewalk-report", "sidewalk-render", "sidewalk-crossplay", "sidewalk-baselines",
             "sidewalk-bench")
 PURELIB = "import sysconfig; print(sysconfig.get_paths()['purelib'])"  # a venv's own site-packages
+PROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+# Names on PyPI that are other projects: `pip install sidewalk` installs "The Simple Activity Aggregator" (2013).
+TAKEN_ON_PYPI = ("sidewalk",)
+# Where install lines and dependencies on this package are written: the pages, the code's messages, the CI script.
+INSTALL_TEXTS = ("README.md", "CITATION.cff", ".ci/run", "docs/**/*.md", "docs/**/*.py", "sidewalk/**/*.py",
+                 "runners/*.py", "runners/*.sh", "conf/**/*.yaml")
+# `pip install 'NAME[extras]'` or `pip install -e '.[extras]'`, and a dependency `"NAME..."` in a TOML list.
+PIP_INSTALL = re.compile(r"pip install (?:-e )?['\"]?(?P<name>sidewalk[\w.-]*|\.)(?:\[(?P<extras>[^\]]*)\])?")
+DEPENDENCY = re.compile(r"dependencies = \[[^\]]*?\"(?P<name>sidewalk[\w.-]*)")
+
+
+def canonical(name: str) -> str:
+    """A distribution name as the package index compares names (PEP 503)."""
+    return re.sub(r"[-_.]+", "-", name).lower()
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +42,7 @@ def wheel(tmp_path_factory) -> Path:
         [sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation", "-q", "-w", str(out)],
         check=True, capture_output=True, text=True, timeout=300,
     )
-    (built,) = out.glob("sidewalk-*.whl")
+    (built,) = out.glob("sidewalk_problem-*.whl")
     return built
 
 
@@ -51,8 +69,9 @@ def fresh_venv(env_dir: Path) -> Path:
 def installed(wheel, tmp_path_factory) -> Path:
     """A fresh virtual environment with the wheel; its dependencies come from the running environment."""
     python = fresh_venv(tmp_path_factory.mktemp("venv"))
+    # No PYTHONPATH: a clone on it shows pip the egg-info the wheel's build left there, as this package installed.
     subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "--no-deps", "-q", str(wheel)],
-                   check=True, capture_output=True, text=True, timeout=300)
+                   check=True, capture_output=True, text=True, timeout=300, env={**os.environ, "PYTHONPATH": ""})
     return python.parent
 
 
@@ -80,6 +99,22 @@ def test_a_fresh_venv_sees_the_running_environment_not_the_base_interpreter(tmp_
     assert "include-system-site-packages = false" in (inner / "pyvenv.cfg").read_text()
 
 
+def test_the_distribution_name_is_free_of_other_projects_and_every_install_line_uses_it():
+    name, extras = canonical(PROJECT["name"]), set(PROJECT["optional-dependencies"])
+    assert name not in TAKEN_ON_PYPI, f"{PROJECT['name']!r} is another project on PyPI"
+    seen = []
+    for path in sorted({path for pattern in INSTALL_TEXTS for path in ROOT.glob(pattern) if path.is_file()}):
+        text = path.read_text()
+        for match in [*PIP_INSTALL.finditer(text), *DEPENDENCY.finditer(text)]:
+            where = f"{path.relative_to(ROOT)}: {match.group(0)!r}"
+            seen.append(where)
+            if match["name"] != ".":
+                assert canonical(match["name"]) == name, f"{where} names another distribution than {name!r}"
+            wanted = {extra.strip() for extra in (match.groupdict().get("extras") or "").split(",") if extra.strip()}
+            assert wanted <= extras, f"{where}: no such extra {sorted(wanted - extras)}; valid: {sorted(extras)}"
+    assert len(seen) >= 5, seen  # the README's, the guides', the PettingZoo face's message, the plug-in example's
+
+
 def test_the_wheel_carries_every_config_and_runner(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     configs = {f"sidewalk/conf/{path.relative_to(ROOT / 'conf')}" for path in (ROOT / "conf").rglob("*.yaml")}
@@ -94,9 +129,13 @@ def test_the_installed_train_command_runs_outside_the_clone(installed, tmp_path)
     folder = tmp_path / "elsewhere"
     folder.mkdir()
     environment = {**os.environ, "PYTHONPATH": ""}
-    where = subprocess.run([str(installed / "python"), "-c", "import sidewalk; print(sidewalk.__file__)"],
+    probe = ("import importlib.metadata, sidewalk; print(sidewalk.__file__); print(sidewalk.__version__); "
+             f"print(importlib.metadata.version({PROJECT['name']!r}))")
+    where = subprocess.run([str(installed / "python"), "-c", probe],
                            cwd=folder, capture_output=True, text=True, check=True, env=environment)
-    assert str(installed.parent) in where.stdout, where.stdout  # the wheel's copy, not the clone
+    file, version, distribution_version = where.stdout.split()
+    assert str(installed.parent) in file, where.stdout  # the wheel's copy, not the clone
+    assert version == distribution_version, where.stdout  # sidewalk.__version__ is the installed distribution's
     done = subprocess.run(
         [str(installed / "sidewalk-train"), "iterations=2", "num_envs=4", "eval_every=0", "eval_episodes=4",
          "logger=none"],
@@ -115,3 +154,17 @@ def test_every_installed_command_answers_help(installed, tmp_path, command):
                           timeout=300, env={**os.environ, "PYTHONPATH": ""}, check=False)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.strip()
+
+
+def test_the_bench_help_gives_each_section_a_line_of_its_own_and_no_internal_revisions(capsys):
+    spec = importlib.util.spec_from_file_location("runner_bench", ROOT / "runners" / "bench.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    with pytest.raises(SystemExit) as done:
+        bench.main(["--help"])
+    assert done.value.code == 0
+    text = capsys.readouterr().out
+    starts = [line.split()[0] for line in text.splitlines() if line.startswith("  ") and line.split()]
+    assert [section for section in bench.SECTIONS if section not in starts] == [], text
+    commits = re.findall(r"\b(?=[0-9a-f]*[0-9])(?=[0-9a-f]*[a-f])[0-9a-f]{7,40}\b", text)
+    assert commits == [], f"--help names this repository's revisions, which a user's clone may lack: {commits}"

@@ -25,6 +25,7 @@ PLUGIN = {
         [project]
         name = "sidewalk-corridor"
         version = "0.1.0"
+        dependencies = ["sidewalk-problem"]
 
         [project.entry-points."sidewalk.opponents"]
         shy = "sidewalk_corridor.shy:ShyOpponent"

@@ -635,3 +635,37 @@ def test_a_run_from_before_a_learner_key_is_one_condition_with_todays_runs_of_it
     assert condition_config(old) != condition_config({**old, "algo.advantage_learning": 0.9})
     # A learner without the key gains none.
     assert "algo.advantage_learning" not in condition_config({**old, "algo.name": "ppo"})
+
+
+# ---- Fig. 10's panels ---------------------------------------------------------------------------------------------
+
+
+def test_fig10_panel_titles_keep_to_their_panels(monkeypatch, tmp_path):
+    """Three continuous panels abreast under the reference's longest titles: no title runs into its neighbour's."""
+    from types import SimpleNamespace
+
+    from sidewalk.report import figures
+
+    def panel(label: str, outcomes: list[str]):
+        steps, episodes = 20, len(outcomes)
+        paths = np.stack(np.broadcast_arrays(np.linspace(0.3, 3.7, steps)[:, None, None], 1.5), -1)  # (T, 1, 1, 2)
+        paths = np.repeat(np.repeat(paths, episodes, 1), 2, 2)  # (T, k, 2 agents, 2)
+        info = {key: np.array([[outcome == key] * 2 for outcome in outcomes]) for key, _ in figures.OUTCOMES}
+        layout = SimpleNamespace(length_m=4.0, width_m=3.0, boxes=[], goals=[(3.7, 1.5), (0.3, 1.5)])
+        replay_ = SimpleNamespace(record=SimpleNamespace(trajectories=paths, info=info, ego=0), layout=layout,
+                                  domain="continuous", run=SimpleNamespace(seed=0), matches_summary=True)
+        agents = [("ego", "TRPO (ego)"), ("other", "prm (other)")]
+        condition = SimpleNamespace(ident="C8", label=label, agents=lambda: agents)
+        return condition, replay_
+
+    long_label = "continuous: TRPO vs prm, shaped [0], ε=0.01, explicit reward, iterations=5000"
+    outcomes = ["reached_goal", "collided_wall", "collided_agent"]
+    drawn = []
+    monkeypatch.setattr(figures, "_save", lambda figure, path: drawn.append(figure))
+    figures._trajectory_figure("Fig. 10", "continuous", [panel(long_label, outcomes)] * 3, tmp_path, [])
+    (figure,) = drawn
+    figure.draw_without_rendering()
+    boxes = sorted((ax.title.get_window_extent() for ax in figure.axes if ax.get_visible()), key=lambda box: box.x0)
+    assert len(boxes) == 3
+    for left, right in itertools.pairwise(boxes):
+        assert left.x1 <= right.x0, f"a title ends at {left.x1:.0f} px, its right neighbour's starts at {right.x0:.0f}"

@@ -4,7 +4,7 @@
 #
 #   results/reference/run.sh            # every preset at the paper's budgets, 5 seeds, into results/sweeps/reference/
 #
-# Every preset of conf/experiment/ that runners/reproduce.sh runs, at the paper's budgets (SPEC §3): 5000 iterations for
+# Every preset of conf/experiment/ that runners/reproduce.sh runs, at the paper's budgets (its §6.1): 5000 iterations for
 # the agent comparisons (Fig. 5/7, both domains), 2000 for the grid's noise study and 5000 for the continuous one
 # (Fig. 6), 5000 for Fig. 8; 5 seeds each (seed=0 replicas=5: seeds 0-4 trained in one process per condition). Fig. 8's
 # explicit reward at ε = 0.01 is the very config of Fig. 6's ε = 0.01 condition, so the pool runs it once. Then the

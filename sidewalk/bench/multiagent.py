@@ -368,7 +368,7 @@ def format_rows(rows: list[dict]) -> str:
                          f"{row['ours/peer']:.2f} (per CPU-second: {row['ours/peer cpu']:.2f})")
     lines.append(f"OMP_WAIT_POLICY: {os.environ.get('OMP_WAIT_POLICY', 'not set (OpenMP default)')}")
     if importlib.util.find_spec("vmas") is None:
-        lines.append("(no peer rows: VMAS is not installed; pip install 'sidewalk[bench]')")
+        lines.append("(no peer rows: VMAS is not installed; pip install 'sidewalk-problem[bench]')")
     return "\n".join(lines)
 
 

@@ -6,7 +6,7 @@
   same envs with Safety-Gymnasium's ``(obs, reward, cost, terminated, truncated, info)`` step, built by its
   ``make``/``make_vec`` (registered when it is imported; Safety-Gymnasium itself is not needed);
 - ``sidewalk.interop.pettingzoo``: ``parallel_env(domain=...)``, a PettingZoo ``ParallelEnv`` (needs the optional
-  ``pettingzoo`` dependency: ``pip install 'sidewalk[pettingzoo]'``).
+  ``pettingzoo`` dependency: ``pip install 'sidewalk-problem[pettingzoo]'``).
 
 Submodules are imported on demand, so importing this package pulls in neither gymnasium nor PettingZoo.
 """

@@ -16,7 +16,7 @@ beyond the bounds is clamped to them.
 another agent, with the core's ``cost="near_miss"`` also on steps it ends within ``near_miss_margin`` of another
 agent; 0 otherwise and on reset). ``state()`` is the true state of every agent, flattened (float32), for
 centralized critics.
-PettingZoo is an optional dependency: ``pip install 'sidewalk[pettingzoo]'``.
+PettingZoo is an optional dependency: ``pip install 'sidewalk-problem[pettingzoo]'``.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ try:
     from pettingzoo import ParallelEnv
 except ImportError as error:  # pragma: no cover - exercised only where pettingzoo is missing
     raise ImportError(
-        "sidewalk.interop.pettingzoo needs PettingZoo; install it with pip install 'sidewalk[pettingzoo]'"
+        "sidewalk.interop.pettingzoo needs PettingZoo; install it with pip install 'sidewalk-problem[pettingzoo]'"
     ) from error
 
 import gymnasium

@@ -1,4 +1,4 @@
-"""The Dijkstra opponent of the discrete Sidewalk (paper §4.2, SPEC §2): the shortest path to its goal on a
+"""The Dijkstra opponent of the discrete Sidewalk (paper §4.2): the shortest path to its goal on a
 costmap that makes cells near the other agents expensive, replanned every step, first move taken.
 
 Every world is planned in one batched computation: the distance-to-goal field of each (controlled agent, world)

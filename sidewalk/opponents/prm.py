@@ -1,4 +1,4 @@
-"""The PRM opponent of the continuous Sidewalk (paper §4.2, SPEC §2): a probabilistic roadmap over the free
+"""The PRM opponent of the continuous Sidewalk (paper §4.2): a probabilistic roadmap over the free
 space, shortest paths on it with costs raised near the other agents, replanned every step, and a unicycle
 controller that steers toward the plan's next waypoint.
 

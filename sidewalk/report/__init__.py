@@ -38,7 +38,7 @@ The modules, each importing only those listed above it (``tests/test_report_impo
 - ``aggregates``: a paper figure's compared settings pooled over its panels (IQM, stratified-bootstrap interval) and
   the performance profile of a figure that compares learners;
 - ``crossplay``: the cross-play matrix of a ``runners/crossplay.py`` folder, its heatmaps and report.md section;
-- ``claims``: the paper's claims (SPEC §4) held against the runs, a verdict each;
+- ``claims``: the paper's claims (its §6.2) held against the runs, a verdict each;
 - ``document``: ``write_report``, which puts ``report.md`` together and writes the files.
 
 Import each name from the module that defines it (``from sidewalk.report.document import write_report``).

@@ -76,7 +76,8 @@ def replay(run: Run, episodes: int) -> Replay:
     policy = load_policy(run.path, experiment, env)
     with torch.no_grad():
         record = run_episodes(
-            env, policy, seed=seed, record_trajectories=min(episodes, experiment.eval_episodes)
+            env, policy, seed=seed, record_trajectories=min(episodes, experiment.eval_episodes),
+            one_world=lambda: make_eval_view(experiment, worlds=1),
         )
     replayed = summarize(record)
     keys = [k for k in replayed if k.endswith(("success_rate", "collision_rate")) and k in run.summary]

@@ -1,4 +1,4 @@
-"""The paper's findings (SPEC §4) held against a set of runs: a verdict per claim and the numbers behind it.
+"""The paper's findings (its §6.2) held against a set of runs: a verdict per claim and the numbers behind it.
 
 Each check reads the same conditions the report's paper figures are drawn from (``figure_panels``), so a verdict
 is always about the curves shown above it in ``report.md``. The verdict is one of ``VERDICTS``, decided by the
@@ -155,7 +155,7 @@ def below_zero(difference: Interval, margin: float = 0.0) -> bool:
 
 @dataclass
 class Verdict:
-    """One claim of SPEC §4 held against the runs of one figure panel."""
+    """One claim of the paper's §6.2 held against the runs of one figure panel."""
 
     verdict: str
     evidence: str
@@ -427,8 +427,8 @@ def explicit_learns_better(panel: Sequence[Condition]) -> list[Verdict]:
     ]
 
 
-# SPEC §4, claim by claim: (figure, the paper figure whose panels the check reads, the check, the domains the paper
-# makes the claim for, what to run for it)
+# The paper's §6.2, claim by claim: (figure, the paper figure whose panels the check reads, the check, the domains
+# the paper makes the claim for, what to run for it)
 CLAIMS = (
     ("Fig. 5/7", PAPER_FIGURES[0], avoids_random, ("discrete",), "fig5_discrete"),
     ("Fig. 5/7", PAPER_FIGURES[0], dijkstra_yields, ("discrete",), "fig5_discrete"),
@@ -468,7 +468,7 @@ def check_claims(conditions: Sequence[Condition]) -> list[Verdict]:
 def claims_section(conditions: Sequence[Condition], numbers: NumberLog) -> list[str]:
     """``report.md`` lines: the verdict table and how verdicts are decided; every number goes to ``numbers``."""
     verdicts = check_claims(conditions)
-    md = ["## The paper's claims (SPEC §4)", ""]
+    md = ["## The paper's claims (its §6.2)", ""]
     if all(v.verdict == "not run" for v in verdicts):
         return md + [
             "_None tested: these runs make none of the paper's figures (`runners/reproduce.sh` runs them all)._",

@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 import math
 import re
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -190,6 +191,10 @@ def slug(text: str) -> str:
 # Fig. 10's layout by the world's length / width: (at least, panels per row, panel width in inches). A long thin
 # world (10 m × 1.5 m) needs a whole row; the 15 × 7 grid fits two abreast, the squarish 4 m × 3 m sidewalk three.
 TRAJECTORY_COLUMNS = ((4.0, 1, 11.0), (1.8, 2, 6.5), (0.0, 3, 4.8))
+TITLE_POINTS = 8  # a panel's title size
+# Characters of a title line per inch of panel: DejaVu Sans averages about 0.55 em a character; 0.65 leaves the
+# space between panels free, so a title wrapped to its panel does not run into its neighbour's.
+TITLE_CHARS_PER_INCH = 72 / (0.65 * TITLE_POINTS)
 
 OUTCOMES = (
     ("reached_goal", "goal"),
@@ -219,8 +224,9 @@ def _outcome(record, world: int, agent: int) -> str:
     return "running"
 
 
-def draw_trajectories(ax, replay_: Replay, condition: Condition) -> None:
-    """The sidewalk outline with each agent's path in the replayed episodes (agent colours as in ``render``)."""
+def draw_trajectories(ax, replay_: Replay, condition: Condition, panel_width_in: float = 6.5) -> None:
+    """The sidewalk outline with each agent's path in the replayed episodes (agent colours as in ``render``), under
+    a title wrapped to the panel's width."""
     from matplotlib.patches import Rectangle
 
     from sidewalk.envs.render import colour
@@ -284,14 +290,13 @@ def draw_trajectories(ax, replay_: Replay, condition: Condition) -> None:
         for episode in range(episodes):
             text = _outcome(record, episode, agent)
             counts[text] = counts.get(text, 0) + 1
-        tallies.append(
-            f"{agent_names[agent].split(' (')[0]}: " + ", ".join(f"{n}× {t}" for t, n in counts.items())
-        )
-    ax.set_title(
-        f"{condition.ident} {condition.label} (seed {replay_.run.seed})\n{episodes} episode(s): "
-        + "; ".join(tallies),
-        fontsize=8,
-    )
+        # No-break spaces: a wrapped title keeps "3× hit wall" on one line.
+        counted = (f"{n}× {text}".replace(" ", "\u00a0") for text, n in counts.items())
+        tallies.append(f"{agent_names[agent].split(' (')[0]}: " + ", ".join(counted))
+    width = int(panel_width_in * TITLE_CHARS_PER_INCH)
+    lines = [f"{condition.ident} {condition.label} (seed {replay_.run.seed})",
+             f"{episodes} episode(s): " + "; ".join(tallies)]
+    ax.set_title("\n".join(textwrap.fill(line, width) for line in lines), fontsize=TITLE_POINTS)
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.02), ncol=paths.shape[2], frameon=False)
     ax.set_axis_off()  # the outline is the frame
 
@@ -429,24 +434,30 @@ def _replay_representatives(
     return replays, problems
 
 
-def _trajectory_figure(
-    title: str, domain: str, chosen: Sequence[tuple[Condition, Replay]], figures_dir: Path, figures: list[Path]
-) -> list[str]:
-    """The figure of one domain's replays, a panel each, drawn into ``figures_dir`` and appended to ``figures``."""
+def trajectory_figure(title: str, chosen: Sequence[tuple[Condition, Replay]]) -> Figure:
+    """One domain's replays, a panel each, their titles wrapped to their panels."""
     # The longest, thinnest world drawn sets the grid, so that every world in the figure stays legible.
     aspect = max(world_aspect(replay_) for _, replay_ in chosen)
     columns, panel_width_in = trajectory_columns(aspect)
     columns = min(columns, len(chosen))
     rows = math.ceil(len(chosen) / columns)
-    # Each panel: the world at its aspect ratio, plus room for the two-line title and the legend below.
-    size = (panel_width_in * columns, (panel_width_in / aspect + 0.8) * rows + 0.5)
-    figure = Figure(figsize=size, layout="constrained")  # makes room for each panel's legend below it
+    # Each panel: the world at its aspect ratio, plus room for a title of up to four lines and the legend below.
+    size = (panel_width_in * columns, (panel_width_in / aspect + 1.1) * rows + 0.5)
+    figure = Figure(figsize=size, layout="constrained")  # makes room for each panel's title and legend
     axes = figure.subplots(rows, columns, squeeze=False).ravel()
     for ax, (condition, replay_) in zip(axes, chosen):
-        draw_trajectories(ax, replay_, condition)
+        draw_trajectories(ax, replay_, condition, panel_width_in)
     for ax in axes[len(chosen) :]:
         ax.set_visible(False)
     figure.suptitle(title)
+    return figure
+
+
+def _trajectory_figure(
+    title: str, domain: str, chosen: Sequence[tuple[Condition, Replay]], figures_dir: Path, figures: list[Path]
+) -> list[str]:
+    """The figure of one domain's replays drawn into ``figures_dir`` and appended to ``figures``."""
+    figure = trajectory_figure(title, chosen)
     path = figures_dir / f"fig10_trajectories_{domain}.png"
     _save(figure, path)
     figures.append(path)
