@@ -187,7 +187,7 @@ def run(algorithms: list[str] | None = None, tasks: list[str] | None = None, see
     out_dir.mkdir(parents=True, exist_ok=True)
     table_path = out_dir / "benchmarl.csv"
     table = pd.read_csv(table_path) if table_path.exists() else pd.DataFrame(columns=COLUMNS)
-    table = with_defaults(table)
+    table = with_defaults(table).reindex(columns=COLUMNS)  # an old table's columns in today's order
     for algorithm, task, seed in planned_runs(algorithms, tasks, list(seeds)):
         # a pair without tuned settings runs at BenchMARL's defaults, and its row says so
         applied = config if algorithm in SidewalkTask[task.upper()].tuned_algorithms() else "default"
