@@ -136,7 +136,8 @@ def test_the_comparison_table_writes_a_row_per_run_and_skips_finished_runs(tmp_p
     assert [(row["algorithm"], row["task"], row["seed"], row["frames"]) for row in rows] == [
         ("mappo", "zipper_continuous", 0, 6000)]
     assert 0.0 <= rows[0]["team_success"] <= 1.0
-    assert (tmp_path / "runs" / "mappo_zipper_continuous_vector_seed0.pt").exists()
+    assert rows[0]["config"] == "default"  # no tuned settings for the pair: BenchMARL's defaults, and said so
+    assert (tmp_path / "runs" / "mappo_zipper_continuous_vector_default_seed0.pt").exists()
 
     def no_training(*args, **kwargs):
         raise AssertionError("a finished run was trained again")
@@ -157,7 +158,7 @@ def test_the_comparison_table_keeps_runs_without_the_state_apart(tmp_path, monke
     pd.DataFrame([old]).to_csv(tmp_path / "benchmarl.csv", index=False)
     seen = []
 
-    def fake_run(algorithm, task, seed, frames, out, eval_episodes, grid_observation, state):
+    def fake_run(algorithm, task, seed, frames, out, eval_episodes, grid_observation, state, config):
         seen.append(state)
         return {**old, "state": state, "team_success": 0.5}
 
@@ -167,7 +168,7 @@ def test_the_comparison_table_keeps_runs_without_the_state_apart(tmp_path, monke
                                    out=str(tmp_path), eval_episodes=4, state=state)
     assert seen == [False]
     assert sorted((row["state"], row["team_success"]) for row in rows) == [(False, 0.5), (True, 1.0)]
-    assert "| mappo | zipper_continuous | vector | no | perturbed | 1 |" in benchmarl_tasks.format_rows(rows)
+    assert "| mappo | zipper_continuous | vector | no | perturbed | default | 1 |" in benchmarl_tasks.format_rows(rows)
 
 
 def test_the_comparison_table_keeps_runs_of_the_paper_s_fixed_starts_apart(tmp_path, monkeypatch):
@@ -180,7 +181,7 @@ def test_the_comparison_table_keeps_runs_of_the_paper_s_fixed_starts_apart(tmp_p
     pd.DataFrame([old]).to_csv(tmp_path / "benchmarl.csv", index=False)
     trained = []
 
-    def fake_run(algorithm, task, seed, frames, out, eval_episodes, grid_observation, state):
+    def fake_run(algorithm, task, seed, frames, out, eval_episodes, grid_observation, state, config):
         trained.append(task)
         return {**old, "protocol": "perturbed", "team_success": 0.5, "distinct_episodes": 200}
 
@@ -189,5 +190,83 @@ def test_the_comparison_table_keeps_runs_of_the_paper_s_fixed_starts_apart(tmp_p
                                out=str(tmp_path), eval_episodes=4)
     assert trained == ["zipper_continuous"]  # the task's worlds are perturbed now: a new row
     table = benchmarl_tasks.format_rows(rows)
-    assert "| nominal | 1 | 6,000 | 1 | 1.00 (1.00) | 1.00 | 0.00 | – |" in table
-    assert "| perturbed | 1 | 6,000 | 1 | 0.50 (0.50) | 1.00 | 0.00 | 200 |" in table
+    assert "| nominal | default | 1 | 6,000 | 1 | 1.00 (1.00) | 1.00 | 0.00 | – |" in table
+    assert "| perturbed | default | 1 | 6,000 | 1 | 0.50 (0.50) | 1.00 | 0.00 | 200 |" in table
+
+
+def test_the_command_line_s_help_names_the_tasks_and_the_tuned_settings(capsys):
+    from sidewalk.interop.benchmarl.__main__ import main
+
+    assert main(["--help"]) == 0  # Hydra's own --help composed the config first and failed without a task
+    out = capsys.readouterr().out
+    assert out.startswith("usage: python -m sidewalk.interop.benchmarl algorithm=ALGORITHM task=TASK")
+    assert "sidewalk/door_continuous   (tuned: ippo, mappo)" in out and "sidewalk/zipper_discrete\n" in out
+    assert "algorithms: iddpg, ippo, iql," in out and "tuned=default" in out
+
+
+@pytest.mark.parametrize(("args", "error"), [
+    (["algorithm=mappo", "task=sidewalk/door_continous"],
+     ("error: task=sidewalk/door_continous is not a BenchMARL task (did you mean sidewalk/door_continuous?); "
+      "the sidewalk's tasks: sidewalk/sidewalk_continuous, sidewalk/sidewalk_discrete,")),
+    (["-m", "algorithm=iql,vdn", "task=sidewalk/sidewalk_discrete,sidewalk/dor_discrete"],  # every value of a sweep
+     "error: task=sidewalk/dor_discrete is not a BenchMARL task (did you mean sidewalk/door_discrete?)"),
+    (["algorithm=mapo", "task=sidewalk/door_continuous"],
+     "error: algorithm=mapo is not a BenchMARL algorithm (did you mean mappo?); valid: iddpg, ippo, iql,"),
+])
+def test_a_misspelt_task_or_algorithm_is_one_error_naming_the_sidewalk_s_tasks(args, error, capsys):
+    from sidewalk.interop.benchmarl.__main__ import main
+
+    assert main(args) == 2  # before Hydra, which listed ~40 VMAS and PettingZoo tasks and none of ours
+    err = capsys.readouterr().err
+    assert err.startswith(error) and err.count("\n") == 1, err
+
+
+def tuned_pairs():
+    from sidewalk.interop.benchmarl import TUNED_DIR
+
+    return sorted((path.parent.name, path.stem) for path in TUNED_DIR.glob("*/*.yaml"))
+
+
+def test_tuned_settings_ship_for_the_issue_s_pairs():
+    assert tuned_pairs() == [("door_continuous", "ippo"), ("door_continuous", "mappo"), ("sidewalk_continuous", "ippo"),
+                             ("sidewalk_continuous", "mappo"), ("sidewalk_discrete", "iql"),
+                             ("sidewalk_discrete", "qmix"), ("sidewalk_discrete", "vdn")]
+
+
+@pytest.mark.parametrize(("task", "algorithm"), tuned_pairs())
+def test_the_tuned_settings_load_and_apply_in_python_and_on_the_command_line(task, algorithm):
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from sidewalk.interop.benchmarl import CONFIG_DIR, TUNED_DIR, experiment_configs
+
+    tuned = OmegaConf.to_container(OmegaConf.load(TUNED_DIR / task / f"{algorithm}.yaml"))
+    configs = experiment_configs(SidewalkTask[task.upper()], algorithm)
+    defaults = experiment_configs(SidewalkTask[task.upper()], algorithm, tuned=False)
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base=None):
+        cfg = compose("config", overrides=[f"algorithm={algorithm}", f"task=sidewalk/{task}"])
+        cfg_default = compose("config", overrides=[f"algorithm={algorithm}", f"task=sidewalk/{task}", "tuned=default"])
+    fields = {"experiment": "config", "algorithm": "algorithm_config", "model": "model_config",
+              "critic_model": "critic_model_config"}
+    changed = 0
+    for section, values in tuned.items():
+        for key, value in values.items():
+            if section == "task":  # the task's env settings, over its own
+                assert configs["task"].config[key] == {**defaults["task"].config[key], **value}
+                assert cfg.task[key] == configs["task"].config[key]
+                continue
+            assert getattr(configs[fields[section]], key) == value, (section, key)
+            assert cfg[section][key] == value, (section, key)
+            changed += getattr(defaults[fields[section]], key) != value
+            assert cfg_default[section][key] == getattr(defaults[fields[section]], key)  # tuned=default: BenchMARL's
+    assert changed >= 5  # the tuned file changes BenchMARL's defaults, not restates them
+
+
+def test_a_misspelt_tuned_setting_is_an_error_naming_the_valid_ones(tmp_path, monkeypatch):
+    from sidewalk.interop import benchmarl
+
+    (tmp_path / "door_continuous").mkdir()
+    (tmp_path / "door_continuous" / "mappo.yaml").write_text("experiment:\n  lrr: 0.001\n")
+    monkeypatch.setattr(benchmarl, "TUNED_DIR", tmp_path)
+    with pytest.raises(TypeError, match=r"unknown parameter 'lrr' \(did you mean 'lr'\?\) for experiment in"):
+        benchmarl.experiment_configs(SidewalkTask.DOOR_CONTINUOUS, "mappo")

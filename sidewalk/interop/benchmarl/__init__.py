@@ -54,6 +54,8 @@ from sidewalk.views.selfplay import SelfPlayView
 
 ENV_NAME = "sidewalk"
 CONFIG_DIR = Path(__file__).parent / "conf"  # BenchMARL's config layout: conf/task/sidewalk/<task>.yaml
+TUNED_DIR = CONFIG_DIR / "tuned" / ENV_NAME  # tuned/sidewalk/<task>/<algorithm>.yaml, as BenchMARL's fine_tuned/
+TUNED_SECTIONS = ("task", "experiment", "algorithm", "model", "critic_model")
 TASK_CONFIG_KEYS = ("domain", "noise", "env", "reward", "state")
 OBSERVATION_KEY = ("agents", "observation")
 
@@ -167,6 +169,49 @@ class SidewalkTask(Task):
     def config_path(self) -> Path:
         return CONFIG_DIR / "task" / ENV_NAME / f"{self.name.lower()}.yaml"
 
+    def tuned_algorithms(self) -> list[str]:
+        """The BenchMARL algorithms this package ships tuned settings for on this task."""
+        return sorted(path.stem for path in (TUNED_DIR / self.name.lower()).glob("*.yaml"))
+
+
+def experiment_configs(task: SidewalkTask, algorithm: str, tuned: bool = True) -> dict[str, Any]:
+    """``Experiment``'s arguments but the seed (``task``, ``algorithm_config``, ``model_config``,
+    ``critic_model_config``, ``config``) for BenchMARL's ``algorithm`` on ``task``: BenchMARL's defaults (its
+    ``base_experiment.yaml``, the algorithm's YAML, ``layers/mlp``) with this package's tuned settings for the pair
+    (``conf/tuned/sidewalk/<task>/<algorithm>.yaml``) over them, where it has some and ``tuned``. A setting that is not
+    a field of BenchMARL's config is an error naming the valid ones."""
+    from benchmarl.algorithms import algorithm_config_registry
+    from benchmarl.experiment import ExperimentConfig
+    from benchmarl.models import MlpConfig
+
+    from sidewalk._checks import check_keys, replace_checked
+
+    check_keys("BenchMARL", [algorithm], sorted(algorithm_config_registry), kind="algorithm")
+    path = TUNED_DIR / task.name.lower() / f"{algorithm}.yaml"
+    settings = _read_yaml(path) if tuned and path.exists() else {}
+    check_keys(str(path), settings, TUNED_SECTIONS, kind="section")
+    task_class = task.get_from_yaml()
+    for key, value in (settings.get("task") or {}).items():  # one level deep: env and reward are dicts
+        task_class.config[key] = {**task_class.config[key], **value} if isinstance(value, dict) else value
+    make_core(task_class.config, 1, 0, "cpu")  # a bad task setting fails here, before any compute
+    owner = f"{path.name} of {task.name.lower()}"
+    return {
+        "task": task_class,
+        "algorithm_config": replace_checked(algorithm_config_registry[algorithm].get_from_yaml(),
+                                            settings.get("algorithm") or {}, f"algorithm in {owner}"),
+        "model_config": replace_checked(MlpConfig.get_from_yaml(), settings.get("model") or {}, f"model in {owner}"),
+        "critic_model_config": replace_checked(MlpConfig.get_from_yaml(), settings.get("critic_model") or {},
+                                               f"critic_model in {owner}"),
+        "config": replace_checked(ExperimentConfig.get_from_yaml(), settings.get("experiment") or {},
+                                  f"experiment in {owner}"),
+    }
+
+
+def _read_yaml(path: Path) -> dict[str, Any]:
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_container(OmegaConf.load(path))
+
 
 def register() -> None:
     """Make the tasks known to BenchMARL's command line (``task=sidewalk/<task>``) and config loaders; idempotent."""
@@ -178,4 +223,6 @@ def register() -> None:
 
 register()
 
-__all__ = ["CONFIG_DIR", "SidewalkTask", "SidewalkTaskClass", "make_core", "register"]
+__all__ = [
+    "CONFIG_DIR", "TUNED_DIR", "SidewalkTask", "SidewalkTaskClass", "experiment_configs", "make_core", "register",
+]
