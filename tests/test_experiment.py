@@ -45,9 +45,8 @@ def history(run_dir: Path) -> list[dict]:
     return [json.loads(line) for line in (run_dir / "history.jsonl").read_text().splitlines()]
 
 
-def test_run_folder_contents(tmp_path):
-    run = tmp_path / "run"
-    main_py(*TINY, f"hydra.run.dir={run}")
+def test_run_folder_contents(finished_run):
+    run = finished_run(TINY)
     files = {p.name for p in run.iterdir()}
     assert {"config.yaml", "history.jsonl", "metrics.csv", "summary.json", "policy.pt"} <= files
     assert not {"checkpoint.pt", "checkpoint.prev.pt"} & files  # keep_checkpoint=final: the state is dropped
@@ -67,12 +66,12 @@ def test_run_folder_contents(tmp_path):
         assert figure.stat().st_size > 10_000 and f"figures/{figure.name}" in report
 
 
-def test_same_seed_same_metrics_across_processes(tmp_path):
-    main_py(*TINY, "seed=3", f"hydra.run.dir={tmp_path / 'a'}")
-    main_py(*TINY, "seed=3", f"hydra.run.dir={tmp_path / 'b'}")
+def test_same_seed_same_metrics_across_processes(tmp_path, finished_run):
+    first = finished_run(TINY)  # seed 0, in a process of its own
+    main_py(*TINY, "seed=0", f"hydra.run.dir={tmp_path / 'b'}")
     main_py(*TINY, "seed=4", f"hydra.run.dir={tmp_path / 'c'}")
-    pd.testing.assert_frame_equal(metrics(tmp_path / "a"), metrics(tmp_path / "b"))
-    assert not metrics(tmp_path / "a").equals(metrics(tmp_path / "c"))
+    pd.testing.assert_frame_equal(metrics(first), metrics(tmp_path / "b"))
+    assert not metrics(first).equals(metrics(tmp_path / "c"))
 
 
 GRID_SETUP = [*TINY_DQN, "noise=0.1"]
@@ -86,11 +85,11 @@ CONTINUOUS_SETUP = [
     [(GRID_SETUP, signal.SIGKILL), (CONTINUOUS_SETUP, signal.SIGKILL), (GRID_SETUP, signal.SIGTERM)],
     ids=["dqn-grid-killed", "trpo-continuous-killed", "dqn-grid-preempted"],
 )
-def test_stopped_run_resumes_to_the_same_metrics(tmp_path, uninterrupted_run, setup, stop):
+def test_stopped_run_resumes_to_the_same_metrics(tmp_path, finished_run, setup, stop):
     # SIGKILL: the run resumes from its last periodic checkpoint. SIGTERM (a scheduler's pre-emption): the run
     # writes a checkpoint at the end of the iteration it is in and exits with 128 + 15.
     overrides = [*RUN, "iterations=40", "checkpoint_every=5", "eval_every=10", *setup]
-    whole = uninterrupted_run(overrides)
+    whole = finished_run(overrides)
 
     stopped = tmp_path / "stopped"
     process = subprocess.Popen(
@@ -116,9 +115,9 @@ def test_stopped_run_resumes_to_the_same_metrics(tmp_path, uninterrupted_run, se
     assert absolute[0] == absolute[1]
 
 
-def test_resume_refuses_another_config_naming_each_key(tmp_path):
+def test_resume_refuses_another_config_naming_each_key(tmp_path, finished_run):
     run = tmp_path / "run"
-    main_py(*TINY, "keep_checkpoint=all", f"hydra.run.dir={run}")
+    shutil.copytree(finished_run([*TINY, "keep_checkpoint=all"]), run)
     config = (run / "config.yaml").read_text()
     result = main_py(*TINY, "noise=0.2", "iterations=8", "resume=true", f"hydra.run.dir={run}", check=False)
     assert result.returncode == 2
@@ -129,33 +128,31 @@ def test_resume_refuses_another_config_naming_each_key(tmp_path):
     assert result.returncode == 2 and "already holds a run" in result.stderr
 
 
-def test_a_finished_run_extends_to_the_run_of_the_larger_budget(tmp_path):
-    main_py(*TINY, "iterations=16", f"hydra.run.dir={tmp_path / 'whole'}")
+def test_a_finished_run_extends_to_the_run_of_the_larger_budget(tmp_path, finished_run):
     extended = tmp_path / "extended"
-    main_py(*TINY, "keep_checkpoint=all", f"hydra.run.dir={extended}")
+    shutil.copytree(finished_run([*TINY, "keep_checkpoint=all"]), extended)
     main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={extended}")
-    pd.testing.assert_frame_equal(metrics(extended), metrics(tmp_path / "whole"))
+    pd.testing.assert_frame_equal(metrics(extended), metrics(finished_run([*TINY, "iterations=16"])))
     assert history(extended)[2] | {"time": None, "git_revision": None} == {
         "event": "resumed", "iterations": {"from": 12, "to": 16}, "time": None, "git_revision": None
     }
     assert "iterations: 16" in (extended / "config.yaml").read_text()
 
 
-def test_a_corrupt_checkpoint_falls_back_to_the_previous_one(tmp_path):
-    main_py(*TINY, "iterations=12", f"hydra.run.dir={tmp_path / 'whole'}")
-    run = tmp_path / "run"
-    main_py(*TINY, "iterations=8", "keep_checkpoint=all", f"hydra.run.dir={run}")  # checkpoints at 8, prev at 4
-    both = tmp_path / "both"
-    shutil.copytree(run, both)
+def test_a_corrupt_checkpoint_falls_back_to_the_previous_one(tmp_path, finished_run):
+    finished = finished_run([*TINY, "keep_checkpoint=all"])  # checkpoints at 12, prev at 8
+    run, both = tmp_path / "run", tmp_path / "both"
+    shutil.copytree(finished, run)
+    shutil.copytree(finished, both)
     data = (run / "checkpoint.pt").read_bytes()
     (run / "checkpoint.pt").write_bytes(data[: len(data) // 2])  # torn: the disk filled, the node died
-    result = main_py(*TINY, "iterations=12", "resume=true", f"hydra.run.dir={run}")
+    result = main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={run}")
     assert "checkpoint.pt is unreadable" in result.stderr
-    pd.testing.assert_frame_equal(metrics(run), metrics(tmp_path / "whole"))  # resumed from iteration 4, exactly
+    pd.testing.assert_frame_equal(metrics(run), metrics(finished_run([*TINY, "iterations=16"])))  # from 8, exactly
 
     for name in ("checkpoint.pt", "checkpoint.prev.pt"):
         (both / name).write_bytes(b"not a checkpoint")
-    result = main_py(*TINY, "iterations=12", "resume=true", f"hydra.run.dir={both}", check=False)
+    result = main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={both}", check=False)
     assert result.returncode == 1 and "no readable checkpoint" in result.stderr
     assert "checkpoint.prev.pt: unreadable" in result.stderr
 
@@ -201,11 +198,11 @@ def test_a_diverged_learner_stops_the_run_and_keeps_the_last_good_checkpoint(tmp
     assert history(tmp_path)[-1]["event"] == "diverged"
 
 
-def test_resume_without_checkpoint_is_an_error(tmp_path):
+def test_resume_without_checkpoint_is_an_error(tmp_path, finished_run):
     result = main_py(*TINY, f"hydra.run.dir={tmp_path / 'new'}", "resume=true", check=False)
     assert result.returncode == 2 and "resume=true" in result.stderr
     finished = tmp_path / "finished"
-    main_py(*TINY, f"hydra.run.dir={finished}")  # keep_checkpoint=final: the state is gone after the run
+    shutil.copytree(finished_run(TINY), finished)  # keep_checkpoint=final: the state is gone after the run
     result = main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={finished}", check=False)
     assert result.returncode == 2 and "keep_checkpoint=all" in result.stderr
 
