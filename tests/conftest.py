@@ -3,17 +3,20 @@ worker then takes one intra-op thread, or the workers' threads would contend for
 
 import fcntl
 import hashlib
+import importlib.util
 import json
 import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
+RUNNERS = ROOT / "runners"
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
     torch.set_num_threads(1)
@@ -42,6 +45,19 @@ def finished_run(tmp_path_factory):
         return folder
 
     return run
+
+
+@pytest.fixture(scope="session")
+def runner():
+    """A script of runners/ imported as a module, so its ``main(argv)`` runs in the test's process (no start-up)."""
+
+    def load(name: str) -> ModuleType:
+        spec = importlib.util.spec_from_file_location(f"runner_{name}", RUNNERS / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    return load
 
 
 @pytest.fixture

@@ -3,7 +3,6 @@ folders reported and skipped, renders, and the experiment presets composing into
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 import json
 import math
@@ -466,15 +465,7 @@ def test_report_holds_the_claims_and_places_the_preamble(tmp_path):
         write_report([tmp_path / "runs"], tmp_path / "out2", preamble=tmp_path / "nope.md")
 
 
-def runner(name: str):
-    """A script of runners/ imported as a module, so its ``main(argv)`` runs in this process (no start-up cost)."""
-    spec = importlib.util.spec_from_file_location(f"runner_{name}", ROOT / "runners" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_report_cli_names_bad_paths_and_options(tmp_path, capsys):
+def test_report_cli_names_bad_paths_and_options(tmp_path, capsys, runner):
     report = runner("report")
     assert report.main([str(tmp_path / "nope")]) == 2
     assert "does not exist" in capsys.readouterr().err
@@ -545,7 +536,7 @@ def test_a_run_folder_written_before_a_key_existed_still_replays(tiny_sweep, tmp
     assert experiment.keep_checkpoint == "final" and experiment.iterations == config.iterations
 
 
-def test_render_a_run_and_scripted_agents(tiny_sweep, tmp_path, capsys):
+def test_render_a_run_and_scripted_agents(tiny_sweep, tmp_path, capsys, runner):
     render = runner("render")
     run = next(tiny_sweep.glob("0_*"))  # a sweep job folder: its name has '=' in it
     assert render.main([str(run), "--episode", "1", "--out", str(tmp_path / "run.gif")]) == 0
