@@ -15,7 +15,11 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import torch
+from omegaconf import OmegaConf
 
+from sidewalk.compose import compose
+from sidewalk.config import validate
+from sidewalk.experiment import Trial
 from sidewalk.run_folder import (
     FolderInUse,
     UnreadableFile,
@@ -51,10 +55,11 @@ class RunsCommand:
 
 @pytest.fixture(scope="module")
 def shared_run(tmp_path_factory) -> Path:
-    """A finished tiny DQN run that kept its checkpoints: the folder a colleague sends."""
+    """A finished tiny DQN run that kept its checkpoints: the folder a colleague sends (trained in this process, as
+    runners/main.py would train it)."""
     run = tmp_path_factory.mktemp("shared") / "run"
-    result = run_py("runners/main.py", *TINY, "iterations=8", "keep_checkpoint=all", f"hydra.run.dir={run}")
-    assert result.returncode == 0, result.stderr
+    cfg = compose([*TINY, "iterations=8", "keep_checkpoint=all"])
+    Trial(validate(cfg), run, OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
     return run
 
 
