@@ -16,10 +16,12 @@ import pandas as pd
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
 from sidewalk.algos.replicas import replica_state
+from sidewalk.compose import compose as compose_config
 from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.experiment import Trial
@@ -147,7 +149,8 @@ def main_py(*overrides: str, timeout: float = 600, check: bool = True) -> subpro
 def test_replica_folders_are_ordinary_run_folders(tmp_path):
     group, lone = tmp_path / "group", tmp_path / "lone"
     main_py(*SHORT, *DQN_GRID, "seed=1", "replicas=2", f"hydra.run.dir={group}")
-    main_py(*SHORT, *DQN_GRID, "seed=2", f"hydra.run.dir={lone}")
+    cfg = compose_config([*SHORT, *DQN_GRID, "seed=2"])  # the lone run, trained in this process as main.py would
+    Trial(validate(cfg), lone, OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
     assert (group / GROUP_DIR / "config.yaml").exists() and not (group / GROUP_DIR / "checkpoint.pt").exists()
     assert find_run_folders([group]) == [replica_dir(group, 1), replica_dir(group, 2)]
     replica, alone = load_run(replica_dir(group, 2)), load_run(lone)
