@@ -13,7 +13,11 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from omegaconf import OmegaConf
 
+from sidewalk.compose import compose as compose_config
+from sidewalk.config import validate
+from sidewalk.experiment import Trial
 from sidewalk.run_folder import read_torch_file
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -67,9 +71,10 @@ def test_run_folder_contents(finished_run):
 
 
 def test_same_seed_same_metrics_across_processes(tmp_path, finished_run):
-    first = finished_run(TINY)  # seed 0, in a process of its own
-    main_py(*TINY, "seed=0", f"hydra.run.dir={tmp_path / 'b'}")
-    main_py(*TINY, "seed=4", f"hydra.run.dir={tmp_path / 'c'}")
+    first = finished_run(TINY)  # seed 0, by main.py in a process of its own
+    for seed, folder in ((0, tmp_path / "b"), (4, tmp_path / "c")):  # here, in a process that ran other tests before
+        cfg = compose_config([*TINY, f"seed={seed}"])
+        Trial(validate(cfg), folder, OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
     pd.testing.assert_frame_equal(metrics(first), metrics(tmp_path / "b"))
     assert not metrics(first).equals(metrics(tmp_path / "c"))
 
@@ -169,11 +174,8 @@ def test_a_finished_default_run_folder_is_small(tmp_path):
 def test_a_diverged_learner_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch):
     import torch
     from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
 
     from sidewalk.algos.dqn import DQN
-    from sidewalk.config import validate
-    from sidewalk.experiment import Trial
     from sidewalk.schema import register_schemas
     from sidewalk.stops import LearnerDiverged
 
@@ -233,7 +235,6 @@ def test_submitit_local_sweep(tmp_path):
 
 def test_resume_reads_keys_added_since_the_folder_was_written_at_their_defaults(tmp_path):
     from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
 
     from sidewalk import run_folder
     from sidewalk.schema import register_schemas
@@ -257,7 +258,6 @@ def test_resume_reads_keys_added_since_the_folder_was_written_at_their_defaults(
 
 def test_a_dqn_folder_from_before_advantage_learning_reads_as_the_plain_dqn_it_ran(tmp_path):
     from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
 
     from sidewalk import run_folder
     from sidewalk.schema import register_schemas
