@@ -7,13 +7,16 @@ import importlib.util
 import json
 import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
 import torch
+from omegaconf import OmegaConf
+
+from sidewalk.compose import compose
+from sidewalk.config import validate
+from sidewalk.experiment import Trial
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNNERS = ROOT / "runners"
@@ -24,9 +27,10 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
 
 @pytest.fixture(scope="session")
 def finished_run(tmp_path_factory):
-    """Trains runners/main.py on a config once for the whole suite, whichever test or worker asks first; every other
-    test asking for the same settings (in any order) waits for it and reads the same folder. Read-only: a test that
-    writes into a run (resumes, corrupts or refuses in it) copies it first."""
+    """Trains a config once for the whole suite, as runners/main.py trains it (its Trial, without the plots main.py
+    draws after it), in the process of whichever test or worker asks first; every other test asking for the same
+    settings (in any order) waits for it and reads the same folder. Read-only: a test that writes into a run
+    (resumes, corrupts or refuses in it) copies it first."""
     worker_root = tmp_path_factory.getbasetemp()
     shared = worker_root.parent if os.environ.get("PYTEST_XDIST_WORKER") else worker_root  # xdist: the workers' common folder
 
@@ -38,9 +42,8 @@ def finished_run(tmp_path_factory):
             fcntl.flock(lock, fcntl.LOCK_EX)  # the other workers wait here while one trains
             if not done.exists():
                 shutil.rmtree(folder, ignore_errors=True)  # a run that failed before, in another test
-                result = subprocess.run([sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={folder}"],
-                                        cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
-                assert result.returncode == 0, result.stderr
+                cfg = compose(overrides)
+                Trial(validate(cfg), folder, OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
                 done.touch()
         return folder
 

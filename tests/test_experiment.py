@@ -49,8 +49,16 @@ def history(run_dir: Path) -> list[dict]:
     return [json.loads(line) for line in (run_dir / "history.jsonl").read_text().splitlines()]
 
 
-def test_run_folder_contents(finished_run):
-    run = finished_run(TINY)
+@pytest.fixture(scope="module")
+def main_run(tmp_path_factory) -> Path:
+    """The tiny run made by runners/main.py in a process of its own, plots and all."""
+    run = tmp_path_factory.mktemp("main") / "run"
+    main_py(*TINY, f"hydra.run.dir={run}")
+    return run
+
+
+def test_run_folder_contents(main_run):
+    run = main_run
     files = {p.name for p in run.iterdir()}
     assert {"config.yaml", "history.jsonl", "metrics.csv", "summary.json", "policy.pt"} <= files
     assert not {"checkpoint.pt", "checkpoint.prev.pt"} & files  # keep_checkpoint=final: the state is dropped
@@ -70,13 +78,12 @@ def test_run_folder_contents(finished_run):
         assert figure.stat().st_size > 10_000 and f"figures/{figure.name}" in report
 
 
-def test_same_seed_same_metrics_across_processes(tmp_path, finished_run):
-    first = finished_run(TINY)  # seed 0, by main.py in a process of its own
-    for seed, folder in ((0, tmp_path / "b"), (4, tmp_path / "c")):  # here, in a process that ran other tests before
-        cfg = compose_config([*TINY, f"seed={seed}"])
-        Trial(validate(cfg), folder, OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
-    pd.testing.assert_frame_equal(metrics(first), metrics(tmp_path / "b"))
-    assert not metrics(first).equals(metrics(tmp_path / "c"))
+def test_same_seed_same_metrics_across_processes(tmp_path, main_run, finished_run):
+    # Seed 0 by main.py in a process of its own, and by a Trial in a test's process that may have run other tests.
+    pd.testing.assert_frame_equal(metrics(main_run), metrics(finished_run(TINY)))
+    cfg = compose_config([*TINY, "seed=4"])
+    Trial(validate(cfg), tmp_path / "seed4", OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
+    assert not metrics(main_run).equals(metrics(tmp_path / "seed4"))
 
 
 GRID_SETUP = [*TINY_DQN, "noise=0.1"]
