@@ -171,7 +171,7 @@ def test_replica_folders_are_ordinary_run_folders(tmp_path):
 
 @pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGTERM], ids=["killed", "preempted"])
 def test_a_stopped_group_resumes_to_the_same_metrics(tmp_path, finished_run, stop):
-    overrides = [*SHORT, *TRPO_CONTINUOUS, "iterations=24", "checkpoint_every=3", "eval_every=6", "replicas=2"]
+    overrides = [*SHORT, *TRPO_CONTINUOUS, "iterations=12", "checkpoint_every=3", "eval_every=6", "replicas=2"]
     whole = finished_run(overrides)
     stopped = tmp_path / "stopped"
     process = subprocess.Popen([sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={stopped}"],
