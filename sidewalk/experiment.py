@@ -142,13 +142,15 @@ class Trial:
         self,
         progress: bool = True,
         on_evaluation: Callable[[dict[str, float], float, float], bool] | None = None,
+        absolute_metric: bool = True,
     ) -> dict[str, Any]:
         """Train, evaluate and write the run folders, holding their writer locks; return the summary (a list of
         them, one per seed, with several seeds).
 
         ``on_evaluation(metrics, started, ended)`` is called after each periodic evaluation with its metrics and
         its ``time.perf_counter()`` bounds; returning True ends training there (the run folder is completed as
-        usual, with the iterations actually run).
+        usual, with the iterations actually run). ``absolute_metric=False`` leaves ``summary.json``'s ``absolute``
+        None, without its ten-fold evaluation (the reference probes compare ``metrics.csv`` alone).
         """
         with contextlib.ExitStack() as locks:
             for folder in self._folders():
@@ -169,7 +171,7 @@ class Trial:
                     if self._after_iteration(parts, stop, signals, bar):
                         break
             bar.close()
-            summaries = self._finish(parts, revision)
+            summaries = self._finish(parts, revision, absolute_metric)
             return summaries[0] if len(summaries) == 1 else summaries
 
     def _folders(self) -> list[Path]:
@@ -325,7 +327,7 @@ class Trial:
         for replica, run in enumerate(parts.runs):
             save_policy(run.run_dir, self._policy_state(parts, replica))
 
-    def _finish(self, parts: Parts, revision: str) -> list[dict[str, Any]]:
+    def _finish(self, parts: Parts, revision: str, absolute_metric: bool) -> list[dict[str, Any]]:
         """The last checkpoint (``keep_checkpoint=all``), then each seed's ``policy.pt`` and ``summary.json`` from its
         final evaluation."""
         exp = self.experiment
@@ -335,7 +337,7 @@ class Trial:
         summaries = []
         for replica, run in enumerate(parts.runs):
             with parts.learners.use(replica):
-                summaries.append(self._conclude(parts, replica, revision))
+                summaries.append(self._conclude(parts, replica, revision, absolute_metric))
             run.history("finished", iteration=run.state.iteration)
         if exp.keep_checkpoint == "final":  # the replay buffer and optimiser state are gigabytes over a sweep
             drop_training_state(self.state_dir)
@@ -343,7 +345,7 @@ class Trial:
             append_history(self.state_dir, "finished", iteration=parts.runs[0].state.iteration)
         return summaries
 
-    def _conclude(self, parts: Parts, replica: int, revision: str) -> dict[str, Any]:
+    def _conclude(self, parts: Parts, replica: int, revision: str, absolute_metric: bool) -> dict[str, Any]:
         """Write a seed's ``policy.pt`` and ``summary.json`` (the last evaluation's metrics, or a final one); return
         the summary."""
         run = parts.runs[replica]
@@ -362,7 +364,7 @@ class Trial:
             **final,
             "seed": exp.seed,
             "eval_protocol": exp.protocol_summary(),
-            "absolute": self._absolute(parts, replica),
+            "absolute": self._absolute(parts, replica) if absolute_metric else None,
             "iterations": state.iteration,
             "frames": frames,
             # Safety Gym's third figure: the cost paid over all of training per frame (world-step) collected.

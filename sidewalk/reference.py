@@ -74,7 +74,7 @@ def probe_job(job_overrides: Sequence[str], work_dir: Path) -> pd.DataFrame:
     from sidewalk.experiment import Trial
 
     experiment = compose_experiment(probe_overrides(job_overrides))
-    Trial(experiment, work_dir).run(progress=False)
+    Trial(experiment, work_dir).run(progress=False, absolute_metric=False)  # a probe is its metrics.csv
     metrics = pd.read_csv(work_dir / "metrics.csv")
     return metrics.drop(columns=[column for column in WALL_CLOCK if column in metrics.columns])
 

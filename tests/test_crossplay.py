@@ -7,7 +7,6 @@ a 6-cell sidewalk with vector observations; built once for the module."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 from types import SimpleNamespace
@@ -48,13 +47,6 @@ RUNS = {
     "iql_self_s0": ["algo=iql", "opponent=self", "seed=0"],
 }
 EPISODES = 8
-
-
-def _runner(name: str):
-    spec = importlib.util.spec_from_file_location(f"runner_{name}", ROOT / "runners" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def train(run_dir: Path, *overrides: str) -> Path:
@@ -162,12 +154,12 @@ def test_bad_partners_and_run_folders_are_named(runs, tmp_path):
         run_crossplay([tmp_path / "missing"], show_progress=False)
 
 
-def test_the_runner_writes_the_same_csv_for_the_same_seed_with_figures_and_report(runs, tmp_path):
-    runner = _runner("crossplay")
+def test_the_runner_writes_the_same_csv_for_the_same_seed_with_figures_and_report(runs, tmp_path, runner):
+    crossplay = runner("crossplay")
     rows = [str(runs["dqn_dijkstra_s0"]), str(runs["dqn_dijkstra_s1"])]
     common = ["--partners", "random,rows", "--episodes", "4", "--seed", "5", "--noise", "0.2", "--no-progress"]
-    assert runner.main([*rows, *common, "--out", str(tmp_path / "a")]) == 0
-    assert runner.main([*rows, *common, "--out", str(tmp_path / "b")]) == 0
+    assert crossplay.main([*rows, *common, "--out", str(tmp_path / "a")]) == 0
+    assert crossplay.main([*rows, *common, "--out", str(tmp_path / "b")]) == 0
     out = tmp_path / "a"
     assert (out / "crossplay.csv").read_bytes() == (tmp_path / "b" / "crossplay.csv").read_bytes()
     meta = json.loads((out / "crossplay.json").read_text())
@@ -190,9 +182,9 @@ def test_the_runner_writes_the_same_csv_for_the_same_seed_with_figures_and_repor
     assert "### Conventions" in report
     assert "| dqn vs dijkstra | " in report and "(figures/crossplay_by_condition_success.png)" in report
     (out / "notes.md").write_text("Seeds of one condition coordinate with each other.")
-    assert runner.main(["--redraw", str(out)]) == 0
+    assert crossplay.main(["--redraw", str(out)]) == 0
     assert "Seeds of one condition coordinate" in (out / "report.md").read_text()
-    assert runner.main([rows[0], "--partners", "nobody", "--out", str(tmp_path / "c"), "--no-progress"]) == 2
+    assert crossplay.main([rows[0], "--partners", "nobody", "--out", str(tmp_path / "c"), "--no-progress"]) == 2
     assert not (tmp_path / "c").exists()
 
 
@@ -209,9 +201,9 @@ def test_condition_means_leave_out_self_pairs():
     assert mean.loc["A", "A"] == pytest.approx((0.1 + 0.2 + 0.1 + 0.3 + 0.2 + 0.3) / 6)
 
 
-def test_the_report_includes_the_matrix(runs, tmp_path):
+def test_the_report_includes_the_matrix(runs, tmp_path, runner):
     out = tmp_path / "crossplay"
-    assert _runner("crossplay").main(
+    assert runner("crossplay").main(
         [str(runs["dqn_dijkstra_s0"]), "--partners", "dijkstra,rows", "--episodes", "4", "--no-progress",
          "--out", str(out)]
     ) == 0

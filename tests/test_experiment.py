@@ -13,7 +13,11 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from omegaconf import OmegaConf
 
+from sidewalk.compose import compose as compose_config
+from sidewalk.config import validate
+from sidewalk.experiment import Trial
 from sidewalk.run_folder import read_torch_file
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,9 +49,15 @@ def history(run_dir: Path) -> list[dict]:
     return [json.loads(line) for line in (run_dir / "history.jsonl").read_text().splitlines()]
 
 
-def test_run_folder_contents(tmp_path):
-    run = tmp_path / "run"
-    result = main_py(*TINY, f"hydra.run.dir={run}")
+@pytest.fixture(scope="module")
+def main_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
+    """The tiny run made by runners/main.py in a process of its own, plots and all, and what it printed."""
+    run = tmp_path_factory.mktemp("main") / "run"
+    return run, main_py(*TINY, f"hydra.run.dir={run}")
+
+
+def test_run_folder_contents(main_run):
+    run, result = main_run
     # What trains and where, first; TorchRL's INFO line on the replay buffer's storage not inside the progress bar.
     assert result.stdout.startswith("training env=discrete env.layout=sidewalk algo=dqn opponent=dijkstra noise=0 "
                                     f"seed=0 iterations=12; run folder: {run}\n"), result.stdout
@@ -71,12 +81,12 @@ def test_run_folder_contents(tmp_path):
         assert figure.stat().st_size > 10_000 and f"figures/{figure.name}" in report
 
 
-def test_same_seed_same_metrics_across_processes(tmp_path):
-    main_py(*TINY, "seed=3", f"hydra.run.dir={tmp_path / 'a'}")
-    main_py(*TINY, "seed=3", f"hydra.run.dir={tmp_path / 'b'}")
-    main_py(*TINY, "seed=4", f"hydra.run.dir={tmp_path / 'c'}")
-    pd.testing.assert_frame_equal(metrics(tmp_path / "a"), metrics(tmp_path / "b"))
-    assert not metrics(tmp_path / "a").equals(metrics(tmp_path / "c"))
+def test_same_seed_same_metrics_across_processes(tmp_path, main_run, finished_run):
+    # Seed 0 by main.py in a process of its own, and by a Trial in a test's process that may have run other tests.
+    pd.testing.assert_frame_equal(metrics(main_run[0]), metrics(finished_run(TINY)))
+    cfg = compose_config([*TINY, "seed=4"])
+    Trial(validate(cfg), tmp_path / "seed4", OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
+    assert not metrics(main_run[0]).equals(metrics(tmp_path / "seed4"))
 
 
 GRID_SETUP = [*TINY_DQN, "noise=0.1"]
@@ -90,11 +100,11 @@ CONTINUOUS_SETUP = [
     [(GRID_SETUP, signal.SIGKILL), (CONTINUOUS_SETUP, signal.SIGKILL), (GRID_SETUP, signal.SIGTERM)],
     ids=["dqn-grid-killed", "trpo-continuous-killed", "dqn-grid-preempted"],
 )
-def test_stopped_run_resumes_to_the_same_metrics(tmp_path, uninterrupted_run, setup, stop):
+def test_stopped_run_resumes_to_the_same_metrics(tmp_path, finished_run, setup, stop):
     # SIGKILL: the run resumes from its last periodic checkpoint. SIGTERM (a scheduler's pre-emption): the run
     # writes a checkpoint at the end of the iteration it is in and exits with 128 + 15.
     overrides = [*RUN, "iterations=40", "checkpoint_every=5", "eval_every=10", *setup]
-    whole = uninterrupted_run(overrides)
+    whole = finished_run(overrides)
 
     stopped = tmp_path / "stopped"
     process = subprocess.Popen(
@@ -120,9 +130,9 @@ def test_stopped_run_resumes_to_the_same_metrics(tmp_path, uninterrupted_run, se
     assert absolute[0] == absolute[1]
 
 
-def test_resume_refuses_another_config_naming_each_key(tmp_path):
+def test_resume_refuses_another_config_naming_each_key(tmp_path, finished_run):
     run = tmp_path / "run"
-    main_py(*TINY, "keep_checkpoint=all", f"hydra.run.dir={run}")
+    shutil.copytree(finished_run([*TINY, "keep_checkpoint=all"]), run)
     config = (run / "config.yaml").read_text()
     result = main_py(*TINY, "noise=0.2", "iterations=8", "resume=true", f"hydra.run.dir={run}", check=False)
     assert result.returncode == 2
@@ -133,33 +143,31 @@ def test_resume_refuses_another_config_naming_each_key(tmp_path):
     assert result.returncode == 2 and "already holds a run" in result.stderr
 
 
-def test_a_finished_run_extends_to_the_run_of_the_larger_budget(tmp_path):
-    main_py(*TINY, "iterations=16", f"hydra.run.dir={tmp_path / 'whole'}")
+def test_a_finished_run_extends_to_the_run_of_the_larger_budget(tmp_path, finished_run):
     extended = tmp_path / "extended"
-    main_py(*TINY, "keep_checkpoint=all", f"hydra.run.dir={extended}")
+    shutil.copytree(finished_run([*TINY, "keep_checkpoint=all"]), extended)
     main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={extended}")
-    pd.testing.assert_frame_equal(metrics(extended), metrics(tmp_path / "whole"))
+    pd.testing.assert_frame_equal(metrics(extended), metrics(finished_run([*TINY, "iterations=16"])))
     assert history(extended)[2] | {"time": None, "git_revision": None} == {
         "event": "resumed", "iterations": {"from": 12, "to": 16}, "time": None, "git_revision": None
     }
     assert "iterations: 16" in (extended / "config.yaml").read_text()
 
 
-def test_a_corrupt_checkpoint_falls_back_to_the_previous_one(tmp_path):
-    main_py(*TINY, "iterations=12", f"hydra.run.dir={tmp_path / 'whole'}")
-    run = tmp_path / "run"
-    main_py(*TINY, "iterations=8", "keep_checkpoint=all", f"hydra.run.dir={run}")  # checkpoints at 8, prev at 4
-    both = tmp_path / "both"
-    shutil.copytree(run, both)
+def test_a_corrupt_checkpoint_falls_back_to_the_previous_one(tmp_path, finished_run):
+    finished = finished_run([*TINY, "keep_checkpoint=all"])  # checkpoints at 12, prev at 8
+    run, both = tmp_path / "run", tmp_path / "both"
+    shutil.copytree(finished, run)
+    shutil.copytree(finished, both)
     data = (run / "checkpoint.pt").read_bytes()
     (run / "checkpoint.pt").write_bytes(data[: len(data) // 2])  # torn: the disk filled, the node died
-    result = main_py(*TINY, "iterations=12", "resume=true", f"hydra.run.dir={run}")
+    result = main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={run}")
     assert "checkpoint.pt is unreadable" in result.stderr
-    pd.testing.assert_frame_equal(metrics(run), metrics(tmp_path / "whole"))  # resumed from iteration 4, exactly
+    pd.testing.assert_frame_equal(metrics(run), metrics(finished_run([*TINY, "iterations=16"])))  # from 8, exactly
 
     for name in ("checkpoint.pt", "checkpoint.prev.pt"):
         (both / name).write_bytes(b"not a checkpoint")
-    result = main_py(*TINY, "iterations=12", "resume=true", f"hydra.run.dir={both}", check=False)
+    result = main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={both}", check=False)
     assert result.returncode == 1 and "no readable checkpoint" in result.stderr
     assert "checkpoint.prev.pt: unreadable" in result.stderr
 
@@ -176,11 +184,8 @@ def test_a_finished_default_run_folder_is_small(tmp_path):
 def test_a_diverged_learner_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch):
     import torch
     from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
 
     from sidewalk.algos.dqn import DQN
-    from sidewalk.config import validate
-    from sidewalk.experiment import Trial
     from sidewalk.schema import register_schemas
     from sidewalk.stops import LearnerDiverged
 
@@ -205,11 +210,11 @@ def test_a_diverged_learner_stops_the_run_and_keeps_the_last_good_checkpoint(tmp
     assert history(tmp_path)[-1]["event"] == "diverged"
 
 
-def test_resume_without_checkpoint_is_an_error(tmp_path):
+def test_resume_without_checkpoint_is_an_error(tmp_path, finished_run):
     result = main_py(*TINY, f"hydra.run.dir={tmp_path / 'new'}", "resume=true", check=False)
     assert result.returncode == 2 and "resume=true" in result.stderr
     finished = tmp_path / "finished"
-    main_py(*TINY, f"hydra.run.dir={finished}")  # keep_checkpoint=final: the state is gone after the run
+    shutil.copytree(finished_run(TINY), finished)  # keep_checkpoint=final: the state is gone after the run
     result = main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={finished}", check=False)
     assert result.returncode == 2 and "keep_checkpoint=all" in result.stderr
 
@@ -274,7 +279,6 @@ def test_submitit_local_sweep(tmp_path):
 
 def test_resume_reads_keys_added_since_the_folder_was_written_at_their_defaults(tmp_path):
     from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
 
     from sidewalk import run_folder
     from sidewalk.schema import register_schemas
@@ -298,7 +302,6 @@ def test_resume_reads_keys_added_since_the_folder_was_written_at_their_defaults(
 
 def test_a_dqn_folder_from_before_advantage_learning_reads_as_the_plain_dqn_it_ran(tmp_path):
     from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
 
     from sidewalk import run_folder
     from sidewalk.schema import register_schemas

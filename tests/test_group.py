@@ -18,10 +18,12 @@ import pandas as pd
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
 from sidewalk.algos.replicas import replica_state
+from sidewalk.compose import compose as compose_config
 from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.experiment import Trial
@@ -68,8 +70,8 @@ def metrics(run_dir: Path) -> pd.DataFrame:
 @pytest.mark.parametrize("setup", ["dqn-grid", "trpo-continuous", "ppo-continuous-random"])
 def test_a_group_is_the_same_for_the_same_seed_and_replicas(tmp_path, setup):
     exp = experiment(*SETUPS[setup], "seed=3", "replicas=2")
-    for name in ("first", "second"):
-        Trial(exp, tmp_path / name).run(progress=False)
+    for name in ("first", "second"):  # their metrics compared: no absolute metric
+        Trial(exp, tmp_path / name).run(progress=False, absolute_metric=False)
     for seed in (3, 4):
         pd.testing.assert_frame_equal(metrics(replica_dir(tmp_path / "first", seed)),
                                       metrics(replica_dir(tmp_path / "second", seed)), check_exact=True)
@@ -80,8 +82,8 @@ def test_a_group_is_the_same_for_the_same_seed_and_replicas(tmp_path, setup):
 def test_without_a_replica_axis_a_replica_is_its_lone_run(tmp_path, setup):
     """Learners that train their replicas one after another (each on its own stream): replica seed 4 of the group
     of seeds 3, 4, 5 is the lone run of seed 4, metric for metric."""
-    Trial(experiment(*SETUPS[setup], "seed=3", "replicas=3"), tmp_path / "three").run(progress=False)
-    Trial(experiment(*SETUPS[setup], "seed=4"), tmp_path / "lone").run(progress=False)
+    for overrides, folder in ((["seed=3", "replicas=3"], "three"), (["seed=4"], "lone")):  # their metrics compared
+        Trial(experiment(*SETUPS[setup], *overrides), tmp_path / folder).run(progress=False, absolute_metric=False)
     pd.testing.assert_frame_equal(metrics(replica_dir(tmp_path / "three", 4)), metrics(tmp_path / "lone"))
 
 
@@ -179,7 +181,8 @@ def main_py(*overrides: str, timeout: float = 600, check: bool = True) -> subpro
 def test_replica_folders_are_ordinary_run_folders(tmp_path):
     group, lone = tmp_path / "group", tmp_path / "lone"
     main_py(*SHORT, *DQN_GRID, "seed=1", "replicas=2", f"hydra.run.dir={group}")
-    main_py(*SHORT, *DQN_GRID, "seed=2", f"hydra.run.dir={lone}")
+    cfg = compose_config([*SHORT, *DQN_GRID, "seed=2"])  # the lone run, trained in this process as main.py would
+    Trial(validate(cfg), lone, OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
     assert (group / GROUP_DIR / "config.yaml").exists() and not (group / GROUP_DIR / "checkpoint.pt").exists()
     assert find_run_folders([group]) == [replica_dir(group, 1), replica_dir(group, 2)]
     replica, alone = load_run(replica_dir(group, 2)), load_run(lone)
@@ -231,9 +234,9 @@ def test_a_command_that_needs_one_run_names_a_group_folders_seeds(tmp_path, caps
 
 
 @pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGTERM], ids=["killed", "preempted"])
-def test_a_stopped_group_resumes_to_the_same_metrics(tmp_path, uninterrupted_run, stop):
-    overrides = [*SHORT, *TRPO_CONTINUOUS, "iterations=24", "checkpoint_every=3", "eval_every=6", "replicas=2"]
-    whole = uninterrupted_run(overrides)
+def test_a_stopped_group_resumes_to_the_same_metrics(tmp_path, finished_run, stop):
+    overrides = [*SHORT, *TRPO_CONTINUOUS, "iterations=12", "checkpoint_every=3", "eval_every=6", "replicas=2"]
+    whole = finished_run(overrides)
     stopped = tmp_path / "stopped"
     process = subprocess.Popen([sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={stopped}"],
                                cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

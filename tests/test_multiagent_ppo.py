@@ -206,11 +206,12 @@ def test_a_self_play_run_resumes_exactly(tmp_path, setup):
         *setup, "opponent=self", "num_envs=4", "iterations=6", "eval_every=2", "eval_episodes=4", "checkpoint_every=3",
         "logger=none", "algo.frames_per_batch=32", "algo.epochs=2", "algo.minibatch_size=16",
     ))
-    Trial(experiment, tmp_path / "whole").run(progress=False)
+    Trial(experiment, tmp_path / "whole").run(progress=False, absolute_metric=False)  # metrics and policy compared
     stopped = tmp_path / "stopped"
     # Stopped at an evaluation iteration, so its closing evaluation is one the whole run makes too.
-    Trial(dataclasses.replace(experiment, iterations=4, keep_checkpoint="all"), stopped).run(progress=False)
-    Trial(dataclasses.replace(experiment, resume=True), stopped).run(progress=False)
+    stopping = Trial(dataclasses.replace(experiment, iterations=4, keep_checkpoint="all"), stopped)
+    stopping.run(progress=False, absolute_metric=False)
+    Trial(dataclasses.replace(experiment, resume=True), stopped).run(progress=False, absolute_metric=False)
     pd.testing.assert_frame_equal(metrics(stopped), metrics(tmp_path / "whole"))
     whole, resumed = (torch.load(run / "policy.pt", weights_only=True)["modules"]["loss"]
                       for run in (tmp_path / "whole", stopped))

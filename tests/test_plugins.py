@@ -1,5 +1,6 @@
 """Plug-ins from outside: a package of its own adds an opponent, a layout and a learner through entry points and
-its YAMLs through Hydra's search path, and each trains through runners/main.py with no file of ours touched."""
+its YAMLs through Hydra's search path, and all three train together through runners/main.py with no file of ours
+touched."""
 
 from __future__ import annotations
 
@@ -162,13 +163,10 @@ def train(site: Path, run_dir: Path, *overrides: str) -> subprocess.CompletedPro
     )
 
 
-@pytest.mark.parametrize(
-    "overrides",
-    [("opponent=shy",), ("env.layout=corridor", "env.width_cells=3", "env.length_cells=9", "env.observation=vector"),
-     ("algo=greedy_dqn",)],
-    ids=["opponent", "layout", "learner"],
-)
-def test_a_plugin_package_trains_through_the_runner(plugin_site, tmp_path, overrides):
+def test_a_plugin_package_trains_through_the_runner(plugin_site, tmp_path):
+    # Its opponent, layout and learner in one run: each is found through its own entry point and YAML.
+    overrides = ("opponent=shy", "env.layout=corridor", "env.width_cells=3", "env.length_cells=9",
+                 "env.observation=vector", "algo=greedy_dqn")
     before = fingerprint(ROOT / "sidewalk", ROOT / "conf")
     done = train(plugin_site, tmp_path / "run", *overrides)
     assert done.returncode == 0, done.stderr[-3000:]

@@ -195,7 +195,7 @@ def test_a_run_logs_the_multiplier_and_resumes_exactly(tmp_path, domain, opponen
         "algo.minibatch_size=32",
     ))
     assert isinstance(experiment.algo, PPOLagrangianConfig)
-    Trial(experiment, tmp_path / "whole").run(progress=False)
+    Trial(experiment, tmp_path / "whole").run(progress=False, absolute_metric=False)  # metrics and policy compared
     frame = metrics(tmp_path / "whole")
     for key in ("train/lagrange_multiplier", "train/episode_cost", "train/loss_cost_critic"):
         assert key in frame.columns, key
@@ -204,8 +204,9 @@ def test_a_run_logs_the_multiplier_and_resumes_exactly(tmp_path, domain, opponen
     assert multiplier.nunique() > 1  # episodes ended and λ moved
     stopped = tmp_path / "stopped"
     # Stopped at an evaluation iteration, so its closing evaluation is one the whole run makes too.
-    Trial(dataclasses.replace(experiment, iterations=4, keep_checkpoint="all"), stopped).run(progress=False)
-    Trial(dataclasses.replace(experiment, resume=True), stopped).run(progress=False)
+    stopping = Trial(dataclasses.replace(experiment, iterations=4, keep_checkpoint="all"), stopped)
+    stopping.run(progress=False, absolute_metric=False)
+    Trial(dataclasses.replace(experiment, resume=True), stopped).run(progress=False, absolute_metric=False)
     pd.testing.assert_frame_equal(metrics(stopped), frame)
     whole, resumed = (torch.load(run / "policy.pt", weights_only=True)["modules"] for run in (tmp_path / "whole", stopped))
     assert whole.keys() == resumed.keys() == {"loss", "lagrange"}

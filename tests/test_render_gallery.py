@@ -3,7 +3,6 @@ render (``sidewalk.render``), and ``runners/render.py`` writes the scenario gall
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 from pathlib import Path
 
@@ -39,14 +38,6 @@ PLANE_CASES = {
     "door": {"n_agents": 16, "length_m": 6, "width_m": 13},
     "zipper": {"n_agents": 2, "length_m": 6, "width_m": 2},
 }
-
-
-def runner(name: str):
-    """A script of runners/ imported as a module, so its ``main(argv)`` runs in this process."""
-    spec = importlib.util.spec_from_file_location(f"runner_{name}", ROOT / "runners" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def test_cases_cover_every_scenario():
@@ -141,7 +132,7 @@ def test_gallery_covers_every_scenario_in_both_domains():
         assert experiment.env_params.layout == scenario and core.render(0).ndim == 3
 
 
-def test_gallery_writes_a_still_a_gif_and_the_readme(tmp_path):
+def test_gallery_writes_a_still_a_gif_and_the_readme(tmp_path, runner):
     render = runner("render")
     assert render.main(["--gallery", str(tmp_path), "--scenario", "door", "--env", "discrete"]) == 0
     still, gif = tmp_path / "door_discrete.png", tmp_path / "door_discrete.gif"
@@ -160,7 +151,7 @@ def test_gallery_writes_a_still_a_gif_and_the_readme(tmp_path):
     assert "(door_discrete.png)](door_discrete.gif)" in readme and "--gallery" in readme
 
 
-def test_gallery_rejects_scripted_options_and_unknown_scenarios(tmp_path, capsys):
+def test_gallery_rejects_scripted_options_and_unknown_scenarios(tmp_path, capsys, runner):
     render = runner("render")
     for argv in (
         ["--gallery", str(tmp_path), "--opponent", "prm"],

@@ -3,7 +3,7 @@ folders reported and skipped, renders, and the experiment presets composing into
 
 from __future__ import annotations
 
-import importlib.util
+import functools
 import itertools
 import json
 import math
@@ -17,8 +17,9 @@ import pandas as pd
 import pytest
 import scipy.stats
 from hydra import compose, initialize_config_dir
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
+from sidewalk.compose import compose as compose_project
 from sidewalk.config import validate
 from sidewalk.report.claims import TIE, above_zero, below_zero, check_claims
 from sidewalk.report.conditions import condition_config, group_conditions
@@ -176,27 +177,30 @@ def outcomes(cfg, value: float) -> dict[str, float]:
     return final
 
 
+@functools.cache
+def job_config(preset: str, key: str, value: str, seed: int) -> DictConfig:
+    """The config of one job of a preset's sweep, composed once for the module (the slow part of a synthetic run)."""
+    return compose_project([f"+experiment={preset}", f"{key}={value}", f"seed={seed}"])
+
+
 def write_sweep(root: Path, preset: str, sweep: dict[str, list[str]], seeds: list[int]) -> None:
-    """Synthetic runs of a preset's sweep, configs composed from the real preset (inside an initialised Hydra);
-    the learner's final success is 0.2 + 0.2 · seed."""
+    """Synthetic runs of a preset's sweep, configs composed from the real preset; the learner's final success is
+    0.2 + 0.2 · seed."""
     (root / preset).mkdir(parents=True)
     (root / preset / "multirun.yaml").write_text("# a sweep folder\n")
     key, values = next(iter(sweep.items()))
     for job, (value, seed) in enumerate(itertools.product(values, seeds)):
-        cfg = compose(
-            config_name="config", overrides=[f"+experiment={preset}", f"{key}={value}", f"seed={seed}"]
-        )
+        cfg = job_config(preset, key, value, seed)
         write_run(root / preset / f"{job}_{key}={value},seed={seed}", cfg, outcomes(cfg, 0.2 + 0.2 * seed))
 
 
 @pytest.fixture(scope="module")
 def synthetic(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("synthetic")
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        write_sweep(root, "fig5_discrete", {"opponent": ["random", "dijkstra", "centralized"]}, [0, 1, 2])
-        write_sweep(root, "fig5_continuous", {"opponent": ["random", "prm", "centralized"]}, [0, 1])
-        write_sweep(root, "fig6_discrete", {"noise": ["0.0", "0.1", "0.2"]}, [0, 1])
-        write_sweep(root, "fig8", {"reward": ["explicit", "implicit"]}, [0, 1])
+    write_sweep(root, "fig5_discrete", {"opponent": ["random", "dijkstra", "centralized"]}, [0, 1, 2])
+    write_sweep(root, "fig5_continuous", {"opponent": ["random", "prm", "centralized"]}, [0, 1])
+    write_sweep(root, "fig6_discrete", {"noise": ["0.0", "0.1", "0.2"]}, [0, 1])
+    write_sweep(root, "fig8", {"reward": ["explicit", "implicit"]}, [0, 1])
     return root
 
 
@@ -313,15 +317,10 @@ def claim_runs(root: Path, preset: str, key: str, outcomes_by_value: dict, itera
     and evaluations rising linearly to them over ``iterations_by_value`` (default 10) iterations."""
     (root / preset).mkdir(parents=True)
     (root / preset / "multirun.yaml").write_text("# a sweep folder\n")
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        for job, (value, seed) in enumerate(itertools.product(outcomes_by_value, [0, 1, 2])):
-            cfg = compose(
-                config_name="config", overrides=[f"+experiment={preset}", f"{key}={value}", f"seed={seed}"]
-            )
-            iterations = (iterations_by_value or {}).get(value, 10)
-            write_run(
-                root / preset / f"{job}_{key}={value},seed={seed}", cfg, outcomes_by_value[value], iterations
-            )
+    for job, (value, seed) in enumerate(itertools.product(outcomes_by_value, [0, 1, 2])):
+        cfg = job_config(preset, key, value, seed)
+        iterations = (iterations_by_value or {}).get(value, 10)
+        write_run(root / preset / f"{job}_{key}={value},seed={seed}", cfg, outcomes_by_value[value], iterations)
 
 
 def verdicts(root: Path) -> dict[str, str]:
@@ -466,15 +465,7 @@ def test_report_holds_the_claims_and_places_the_preamble(tmp_path):
         write_report([tmp_path / "runs"], tmp_path / "out2", preamble=tmp_path / "nope.md")
 
 
-def runner(name: str):
-    """A script of runners/ imported as a module, so its ``main(argv)`` runs in this process (no start-up cost)."""
-    spec = importlib.util.spec_from_file_location(f"runner_{name}", ROOT / "runners" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_report_cli_names_bad_paths_and_options(tmp_path, capsys):
+def test_report_cli_names_bad_paths_and_options(tmp_path, capsys, runner):
     report = runner("report")
     assert report.main([str(tmp_path / "nope")]) == 2
     assert "does not exist" in capsys.readouterr().err
@@ -545,7 +536,7 @@ def test_a_run_folder_written_before_a_key_existed_still_replays(tiny_sweep, tmp
     assert experiment.keep_checkpoint == "final" and experiment.iterations == config.iterations
 
 
-def test_render_a_run_and_scripted_agents(tiny_sweep, tmp_path, capsys):
+def test_render_a_run_and_scripted_agents(tiny_sweep, tmp_path, capsys, runner):
     render = runner("render")
     run = next(tiny_sweep.glob("0_*"))  # a sweep job folder: its name has '=' in it
     assert render.main([str(run), "--episode", "1", "--out", str(tmp_path / "run.gif")]) == 0

@@ -80,9 +80,10 @@ def write_preset(
 ) -> None:
     (root / preset).mkdir(parents=True, exist_ok=True)
     (root / preset / "multirun.yaml").write_text("# a sweep folder\n")
+    composed = compose(config_name="config", overrides=[f"+experiment={preset}", f"opponent={opponent}", *extra])
     for seed, value in enumerate(values):
-        overrides = [f"+experiment={preset}", f"opponent={opponent}", f"seed={seed}", *extra]
-        cfg = compose(config_name="config", overrides=overrides)
+        cfg = composed.copy()
+        cfg.seed = seed  # what the override seed=N sets: one composition serves every seed
         name = f"{opponent}{'_'.join(('',) + extra)},seed={seed}".replace("=", "-")
         write_run(root / preset / name, cfg, outcomes(opponent, value))
 

@@ -227,7 +227,8 @@ def run_trial(tmp_path: Path, *overrides: str) -> tuple[pd.DataFrame, dict]:
             "num_envs=16", "iterations=6", "eval_every=3", "eval_episodes=16", "logger=none", "checkpoint_every=0",
             "algo.frames_per_batch=64", "algo.learning_starts=0", "algo.batch_size=32", *overrides,
         ])
-    summary = Trial(validate(cfg), tmp_path, OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
+    trial = Trial(validate(cfg), tmp_path, OmegaConf.to_container(cfg, resolve=True))
+    summary = trial.run(progress=False, absolute_metric=False)  # the costs are the training's and the last evaluation's
     return pd.read_csv(tmp_path / "metrics.csv"), summary
 
 
