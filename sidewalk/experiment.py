@@ -4,9 +4,8 @@
 
 - ``config.yaml`` and ``history.jsonl``: the resolved config and the run's events (``sidewalk.run_folder``);
 - ``metrics.csv``: one row per iteration (frames, wall clock, train metrics, eval metrics at eval iterations);
-- ``summary.json``: the final evaluation as ``sidewalk.evaluate``'s flat keys plus seed, the evaluation protocol, the
-  absolute metric (``policy.best.pt``, the best evaluation's policy, played on ten times the episodes), wall clock,
-  versions, revision;
+- ``summary.json``: the final evaluation (``sidewalk.evaluate``'s keys), seed, protocol, absolute metric (the best
+  evaluation's policy, ``policy.best.pt``, played on ten times the episodes), wall clock, versions, revision;
 - ``checkpoint.pt`` (and the generation before it, ``checkpoint.prev.pt``): everything needed to continue exactly
   where the run was (``resume=true``), kept after the run only with ``keep_checkpoint=all``;
 - ``policy.pt``: the learner's networks and the world they learned in (written at every checkpoint and at the end),
