@@ -101,9 +101,8 @@ def make_view(experiment: Experiment, num_envs: int, seed: int, env_params: Any 
 
 
 def make_eval_view(experiment: Experiment, seed: int | None = None, worlds: int | None = None) -> EnvBase:
-    """The env an evaluation plays: ``eval_episodes`` worlds (or ``worlds``) drawn as the experiment's evaluation
-    protocol says (``Experiment.eval_env_params``), seeded from the evaluation's own stream (``seed``: the
-    experiment's)."""
+    """The env an evaluation plays: ``eval_episodes`` (or ``worlds``) worlds drawn as its protocol says
+    (``Experiment.eval_env_params``), seeded from the evaluation's own stream (``seed``: the experiment's)."""
     seed = experiment.seed if seed is None else seed
     worlds = experiment.eval_episodes if worlds is None else worlds
     return make_view(experiment, worlds, seed + EVAL_SEED_OFFSET, env_params=experiment.eval_env_params)
