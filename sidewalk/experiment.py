@@ -59,7 +59,6 @@ from sidewalk.run_folder import (
     git_revision,
     has_checkpoint,
     package_versions,
-    replica_dir,
     save_policy,
     strict_json,
     writer_lock,
