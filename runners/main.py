@@ -75,7 +75,7 @@ def main(cfg: DictConfig) -> float | None:
         if plan == "start" and experiment.resume:  # a sweep's job that the interrupted sweep never reached
             experiment, config = dataclasses.replace(experiment, resume=False), {**config, "resume": False}
         try:
-            return train(experiment, run_dir, config, in_sweep, continue_command(hydra_cfg))
+            return train(experiment, run_dir, config, in_sweep, cfg.plots, continue_command(hydra_cfg))
         except KeyboardInterrupt:  # Ctrl-C before the training loop took over SIGINT (start-up, the final report)
             holds_run = (state_dir(run_dir, experiment) / run_folder.CONFIG).exists()  # else: start it, no resume
             print(f"\ninterrupted; {run_dir} keeps what it had written; continue with:\n  "
@@ -93,9 +93,9 @@ def refuse(error: Exception, in_sweep: bool, error_file: Path) -> None:
     hydra_callbacks.refuse(error)
 
 
-def train(experiment, run_dir: Path, config: dict, in_sweep: bool, continue_with: str) -> float | None:
-    """Run the trial and print its headline figures (and write its plots, outside a sweep); ``continue_with``: the
-    command that continues it, printed if it is stopped."""
+def train(experiment, run_dir: Path, config: dict, in_sweep: bool, plots: bool, continue_with: str) -> float | None:
+    """Run the trial and print its headline figures (and write its plots if ``plots``, outside a sweep);
+    ``continue_with``: the command that continues it, printed if it is stopped."""
     from sidewalk.experiment import Trial
     from sidewalk.stops import LearnerDiverged, RunInterrupted
 
@@ -118,7 +118,7 @@ def train(experiment, run_dir: Path, config: dict, in_sweep: bool, continue_with
         (run_dir / ERROR_FILE).write_text(traceback.format_exc())
         return None
     return report(summaries if isinstance(summaries, list) else [summaries], run_dir,
-                  plots=not in_sweep)  # a sweep's runs are reported together: runners/report.py <sweep folder>
+                  plots=plots and not in_sweep)  # a sweep's runs are reported together: runners/report.py <sweep folder>
 
 
 def report(summaries: list[dict], run_dir: Path, plots: bool) -> float | None:

@@ -53,7 +53,7 @@ LOCK = ".writer.lock"
 # In a folder of replicas trained together (replicas=R, sidewalk.experiment.Trial): the group's own config, history and checkpoint.
 GROUP_DIR = ".group"
 # Keys a resume may change: the flag itself and what is kept after the run, neither of which changes a number.
-RESUME_MAY_CHANGE = ("resume", "keep_checkpoint")
+RESUME_MAY_CHANGE = ("resume", "keep_checkpoint", "plots")
 
 
 def replica_dir(run_dir: str | Path, seed: int) -> Path:

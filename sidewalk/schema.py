@@ -132,6 +132,7 @@ class ExperimentSchema:
     torch_threads: int = 1
     shield: bool = False
     other_play: bool = False
+    plots: bool = True
 
 
 def with_schema_defaults(cfg: DictConfig) -> DictConfig:

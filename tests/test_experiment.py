@@ -23,7 +23,10 @@ from sidewalk.run_folder import read_torch_file
 ROOT = Path(__file__).resolve().parents[1]
 WALL_CLOCK = ["time_s", "frames_per_s"]
 # A tiny run: a few worlds, small batches; the DQN learns from the first batch on.
-RUN = ["num_envs=4", "iterations=12", "eval_every=4", "eval_episodes=8", "checkpoint_every=4", "logger=none"]
+# plots=false: the report costs a process ~5 s; the main run below writes it and its test reads it.
+RUN = [
+    "num_envs=4", "iterations=12", "eval_every=4", "eval_episodes=8", "checkpoint_every=4", "logger=none", "plots=false"
+]
 TINY_DQN = [
     "algo.frames_per_batch=16", "algo.batch_size=16", "algo.buffer_size=2000", "algo.learning_starts=0",
     "algo.updates_per_batch=1",
@@ -53,7 +56,7 @@ def history(run_dir: Path) -> list[dict]:
 def main_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
     """The tiny run made by runners/main.py in a process of its own, plots and all, and what it printed."""
     run = tmp_path_factory.mktemp("main") / "run"
-    return run, main_py(*TINY, f"hydra.run.dir={run}")
+    return run, main_py(*TINY, "plots=true", f"hydra.run.dir={run}")
 
 
 def test_run_folder_contents(main_run):

@@ -235,7 +235,8 @@ def test_a_command_that_needs_one_run_names_a_group_folders_seeds(tmp_path, caps
 
 @pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGTERM], ids=["killed", "preempted"])
 def test_a_stopped_group_resumes_to_the_same_metrics(tmp_path, finished_run, stop):
-    overrides = [*SHORT, *TRPO_CONTINUOUS, "iterations=12", "checkpoint_every=3", "eval_every=6", "replicas=2"]
+    overrides = [*SHORT, *TRPO_CONTINUOUS, "iterations=12", "checkpoint_every=3", "eval_every=6", "replicas=2",
+                 "plots=false"]
     whole = finished_run(overrides)
     stopped = tmp_path / "stopped"
     process = subprocess.Popen([sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={stopped}"],

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = ["iterations=2", "num_envs=4", "eval_every=0", "eval_episodes=4", "logger=none", "checkpoint_every=0"]
+TINY = ["iterations=2", "num_envs=4", "eval_every=0", "eval_episodes=4", "logger=none", "checkpoint_every=0", "plots=false"]
 
 # The worked example of docs/guide/extending.md, as its files.
 PLUGIN = {

@@ -33,7 +33,7 @@ from sidewalk.run_folder import (
 ROOT = Path(__file__).resolve().parents[1]
 WALL_CLOCK = ["time_s", "frames_per_s"]
 TINY = [
-    "num_envs=4", "eval_every=4", "eval_episodes=8", "checkpoint_every=4", "logger=none",
+    "num_envs=4", "eval_every=4", "eval_episodes=8", "checkpoint_every=4", "logger=none", "plots=false",
     "algo.frames_per_batch=16", "algo.batch_size=16", "algo.buffer_size=2000", "algo.learning_starts=0",
     "algo.updates_per_batch=1",
 ]
@@ -198,6 +198,7 @@ def test_ctrl_c_checkpoints_exits_130_and_prints_the_command_that_resumes_to_the
     resumed = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
     assert resumed.returncode == 0, resumed.stderr
     assert [path.name for path in tmp_path.glob("runs/*")] == [stopped.name]  # no second folder
+    assert "plots and report" not in resumed.stdout and not (stopped / "report").exists()  # plots=false
     pd.testing.assert_frame_equal(pd.read_csv(stopped / "metrics.csv").drop(columns=WALL_CLOCK),
                                   pd.read_csv(whole / "metrics.csv").drop(columns=WALL_CLOCK))
 
