@@ -195,16 +195,26 @@ def experiment_configs(task: SidewalkTask, algorithm: str, tuned: bool = True) -
         task_class.config[key] = {**task_class.config[key], **value} if isinstance(value, dict) else value
     make_core(task_class.config, 1, 0, "cpu")  # a bad task setting fails here, before any compute
     owner = f"{path.name} of {task.name.lower()}"
+    models = {section: _model_classes(settings.get(section) or {}) for section in ("model", "critic_model")}
     return {
         "task": task_class,
         "algorithm_config": replace_checked(algorithm_config_registry[algorithm].get_from_yaml(),
                                             settings.get("algorithm") or {}, f"algorithm in {owner}"),
-        "model_config": replace_checked(MlpConfig.get_from_yaml(), settings.get("model") or {}, f"model in {owner}"),
-        "critic_model_config": replace_checked(MlpConfig.get_from_yaml(), settings.get("critic_model") or {},
+        "model_config": replace_checked(MlpConfig.get_from_yaml(), models["model"], f"model in {owner}"),
+        "critic_model_config": replace_checked(MlpConfig.get_from_yaml(), models["critic_model"],
                                                f"critic_model in {owner}"),
         "config": replace_checked(ExperimentConfig.get_from_yaml(), settings.get("experiment") or {},
                                   f"experiment in {owner}"),
     }
+
+
+def _model_classes(model: dict[str, Any]) -> dict[str, Any]:
+    """A model section with its ``*_class`` names (``torch.nn.ReLU``) made classes, as BenchMARL's own YAML loader
+    (``parse_model_config``) makes them."""
+    from benchmarl.utils import _class_from_name
+
+    return {key: _class_from_name(value) if key.endswith("class") and isinstance(value, str) else value
+            for key, value in model.items()}
 
 
 def _read_yaml(path: Path) -> dict[str, Any]:
