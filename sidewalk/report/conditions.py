@@ -15,7 +15,7 @@ from sidewalk.run_folder import SUMMARY
 
 # Keys that change neither what a run learns nor what it measures, so they never split runs into conditions
 # (a resumed run's config says resume=true; a run logged to TensorBoard is the same experiment as one logged to CSV).
-BOOKKEEPING_KEYS = ("seed", "resume", "device", "torch_threads", "checkpoint_every", "logger")
+BOOKKEEPING_KEYS = ("seed", "resume", "device", "torch_threads", "checkpoint_every", "logger", "plots")
 OPPONENT_ORDER = ("random", "dijkstra", "prm", "centralized")
 DOMAIN_ORDER = ("discrete", "continuous")
 def _is_bookkeeping(key: str) -> bool:
