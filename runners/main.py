@@ -64,7 +64,7 @@ def main(cfg: DictConfig) -> float | None:
         except run_folder.FolderInUse as error:
             refuse(error, in_sweep, refused_file)
             return None
-        except (ValueError, TypeError, FileNotFoundError, NotADirectoryError, run_folder.RunFolderError) as error:
+        except hydra_callbacks.REFUSED as error:
             refuse(error, in_sweep, run_dir / ERROR_FILE)
             return None
         for stale in (run_dir / ERROR_FILE, refused_file):  # an earlier attempt's failure, which this one retries
