@@ -163,8 +163,24 @@ def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_one_leaves_no
         first.wait()
     resumed = run_py("runners/main.py", *overrides, "resume=true", timeout=600)  # at once: no stale lock
     assert resumed.returncode == 0, resumed.stderr
-    events = [json.loads(line)["event"] for line in (run / "history.jsonl").read_text().splitlines()]
-    assert events[0] == "started" and events[-2:] == ["resumed", "finished"]
+    assert events(run)[0] == "started" and events(run)[-2:] == ["resumed", "finished"]
+
+
+def events(folder: Path) -> list[str]:
+    return [json.loads(line)["event"] for line in (folder / "history.jsonl").read_text().splitlines()]
+
+
+def ctrl_c_once(arguments: list[str], written: Path, pattern: str) -> tuple[int, str]:
+    """Start ``runners/main.py`` with ``arguments``, send Ctrl-C once ``written`` holds a file matching ``pattern``;
+    its exit status and stderr."""
+    process = subprocess.Popen([sys.executable, "runners/main.py", *arguments],
+                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 300
+    while not list(written.glob(pattern)) and process.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=300)
+    return process.returncode, stderr
 
 
 def printed_command(stderr: str) -> list[str]:
@@ -180,15 +196,9 @@ def test_ctrl_c_checkpoints_exits_130_and_prints_the_command_that_resumes_to_the
     overrides = [*TINY, "iterations=40", "checkpoint_every=5", "eval_every=10", "noise=0.1"]
     whole = finished_run(overrides)
     # A folder named by the time it starts, as the default one is: the same command again would start another.
-    process = subprocess.Popen([sys.executable, "runners/main.py", *overrides,
-                                f"hydra.run.dir={tmp_path}/runs/${{now:%Y-%m-%d_%H-%M-%S-%f}}"],
-                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 300
-    while not list(tmp_path.glob("runs/*/checkpoint.pt")) and process.poll() is None and time.time() < deadline:
-        time.sleep(0.02)
-    process.send_signal(signal.SIGINT)
-    _, stderr = process.communicate(timeout=300)
-    assert process.returncode == 130, stderr
+    returncode, stderr = ctrl_c_once([*overrides, f"hydra.run.dir={tmp_path}/runs/${{now:%Y-%m-%d_%H-%M-%S-%f}}"],
+                                     tmp_path, "runs/*/checkpoint.pt")
+    assert returncode == 130, stderr
     assert "SIGINT received: checkpointed at iteration" in stderr and "Traceback" not in stderr
     (stopped,) = tmp_path.glob("runs/*")
     at = read_torch_file(stopped / "checkpoint.pt")["iteration"]
@@ -203,23 +213,13 @@ def test_ctrl_c_checkpoints_exits_130_and_prints_the_command_that_resumes_to_the
                                   pd.read_csv(whole / "metrics.csv").drop(columns=WALL_CLOCK))
 
 
-def events(folder: Path) -> list[str]:
-    return [json.loads(line)["event"] for line in (folder / "history.jsonl").read_text().splitlines()]
-
-
 def test_an_interrupted_sweep_of_groups_continues_with_the_one_command_it_prints(tmp_path):
     # Ctrl-C in the second of three jobs (each a group of two seeds): the first has finished, the second checkpoints,
     # the third never starts. The printed command skips the first, resumes the second and starts the third.
     overrides = [*TINY, "iterations=12", "checkpoint_every=2", "replicas=2", "noise=0,0.05,0.1"]
-    process = subprocess.Popen([sys.executable, "runners/main.py", "-m", *overrides,
-                                f"hydra.sweep.dir={tmp_path}/${{now:%Y-%m-%d_%H-%M-%S-%f}}"],  # as the default's
-                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 300
-    while not list(tmp_path.glob("*/1_*/.group/checkpoint.pt")) and process.poll() is None and time.time() < deadline:
-        time.sleep(0.02)
-    process.send_signal(signal.SIGINT)
-    _, stderr = process.communicate(timeout=300)
-    assert process.returncode == 130, stderr
+    returncode, stderr = ctrl_c_once(["-m", *overrides, f"hydra.sweep.dir={tmp_path}/${{now:%Y-%m-%d_%H-%M-%S-%f}}"],
+                                     tmp_path, "*/1_*/.group/checkpoint.pt")  # a folder named as the default's
+    assert returncode == 130, stderr
     (sweep,) = tmp_path.iterdir()
     assert [job.name[0] for job in sorted(sweep.glob("[0-9]_*"))] == ["0", "1"]
     command = printed_command(stderr)
