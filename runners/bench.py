@@ -46,7 +46,7 @@ sections (env, planning and views when none is named; times at each section's de
   budget      ~6 min      where an iteration's time goes in the default DQN and the TRPO runs
                           (--baseline REVISION, --seeds, --runs, --trpo-iterations)
   reproduce   ~15 min     runners/reproduce.sh full's wall-clock, estimated from measured iterations
-                          (--baseline REVISION, --processes, --probe-iterations, --probe-period)
+                          (--baseline REVISION, --processes, --probe-iterations, --probe-period, --device)
   scenarios   ~3 min      env-steps/s at N agents, ours beside VMAS navigation (--agents)
   multiagent  ~12 min     IPPO training frames/s at 4096 worlds, ours beside TorchRL's example on VMAS
                           (--ma-steps, --ma-iterations, --ma-warmup, --ma-learners)

@@ -27,14 +27,12 @@ import contextlib
 import dataclasses
 import json
 import math
-import random
 import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torchrl.collectors import Collector
@@ -65,6 +63,7 @@ from sidewalk.run_folder import (
 )
 from sidewalk.snapshot import capture_rng, restore_rng
 from sidewalk.stops import LearnerDiverged, RunInterrupted, StopSignals
+from sidewalk.streams import seed_globals
 from sidewalk.trial_state import (
     Parts,
     SeedRun,
@@ -177,9 +176,7 @@ class Trial:
     def _seed(self) -> None:
         exp = self.experiment
         torch.set_num_threads(exp.torch_threads)  # small networks: one thread beats contention on 2 cores
-        torch.manual_seed(exp.seed)
-        np.random.seed(exp.seed)
-        random.seed(exp.seed)
+        seed_globals(exp.seed, exp.device)
 
     def _build(self) -> Parts:
         """env → view → learner → collector → replay buffer → logger."""

@@ -10,6 +10,7 @@ is saved back to replica ``r`` on the way out. A group of one replica therefore 
 from __future__ import annotations
 
 import contextlib
+import os
 import random
 from collections.abc import Iterator, Sequence
 from typing import Any
@@ -18,13 +19,22 @@ import numpy as np
 import torch
 
 
+def seed_globals(seed: int, device: str | torch.device = "cpu") -> None:
+    """Seed torch's, NumPy's and Python's global generators; on a GPU also ask for deterministic kernels, PyTorch's
+    recipe for the same numbers from the same seed twice on one device (a kernel without one warns)."""
+    torch.manual_seed(seed)
+    np.random.seed(seed)
+    random.seed(seed)
+    if torch.device(device).type == "cuda":
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")  # read when cuBLAS starts, before its first call
+        torch.use_deterministic_algorithms(True, warn_only=True)
+
+
 def seeded_state(seed: int) -> dict[str, Any]:
     """The global generators' state right after ``torch.manual_seed(seed)``, ``np.random.seed(seed)`` and
     ``random.seed(seed)``, as a lone trial seeds them; the process's own state is left as it was."""
     outer = capture_global()
-    torch.manual_seed(seed)
-    np.random.seed(seed)
-    random.seed(seed)
+    seed_globals(seed)
     state = capture_global()
     restore_global(outer)
     return state

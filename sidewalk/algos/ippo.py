@@ -80,8 +80,8 @@ def agent_encoder(observation_spec, share_params: bool, norm: RunningNorm | None
         activation_class=nn.ReLU, **PAPER_CONV,
     )
     encoder = nn.Sequential(Pixels(), conv)
-    with torch.no_grad():
-        features = encoder(observation_spec.zero().unsqueeze(0)).shape[-1]
+    with torch.no_grad():  # the encoder is built on the CPU and moved with the learner; the spec may live on a GPU
+        features = encoder(observation_spec.zero().unsqueeze(0).cpu()).shape[-1]
     return encoder, features
 
 

@@ -158,10 +158,11 @@ def in_order(seconds: Sequence[float], processes: int) -> float:
 
 
 def run(baseline: str | None = None, processes: int = 2, probe_iterations: int = PROBE_ITERATIONS,
-        probe_period: int = PROBE_PERIOD, probes_at_once: int | None = None) -> list[dict[str, Any]]:
+        probe_period: int = PROBE_PERIOD, probes_at_once: int | None = None,
+        device: str | None = None) -> list[dict[str, Any]]:
     """Rows per distinct job, per preset and in total; ``probes_at_once`` (default: ``processes``) probes run side by
     side, so that each is measured under the load of the estimate's ``processes`` (fewer when other work shares the
-    machine)."""
+    machine); ``device`` (``cuda``, say) is every probe's ``device=``, as ``reproduce.sh full device=cuda`` runs."""
     if probe_period < 2 or probe_iterations < WARMUP + probe_period + 2:
         raise ValueError(f"--probe-iterations {probe_iterations} with --probe-period {probe_period}: the probe needs "
                          f"a period of at least 2 and at least {WARMUP + probe_period + 2} iterations (an evaluation, "
@@ -177,7 +178,9 @@ def run(baseline: str | None = None, processes: int = 2, probe_iterations: int =
         def probe(numbered):
             number, (key, name) = numbered
             print(f"reproduce: probing {' '.join(key)} on {name} ...", file=sys.stderr, flush=True)
-            return _probe(trees[name], [*key, "seed=0"], Path(tmp) / f"probe-{number}", probe_iterations, probe_period)
+            on_device = [f"device={device}"] if device else []
+            return _probe(trees[name], [*key, "seed=0", *on_device], Path(tmp) / f"probe-{number}", probe_iterations,
+                          probe_period)
 
         with ThreadPoolExecutor(max_workers=probes_at_once or processes) as pool:
             costs = dict(zip(probes, pool.map(probe, enumerate(probes))))
@@ -240,6 +243,7 @@ def parse_options(argv: Sequence[str]) -> dict[str, Any]:
     parser.add_argument("--probe-iterations", type=int, default=PROBE_ITERATIONS)
     parser.add_argument("--probe-period", type=int, default=PROBE_PERIOD,
                         help="iterations between the probe's evaluations and checkpoints")
+    parser.add_argument("--device", help="every probe's device= (cuda, cuda:1, ...; default: each run's own)")
     args, _ = parser.parse_known_args(argv)
     for flag in ("processes", "probes_at_once"):
         value = getattr(args, flag)
