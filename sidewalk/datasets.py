@@ -42,7 +42,8 @@ if TYPE_CHECKING:
 
 METADATA_KEY = "sidewalk"
 CARD_NAME = "DATACARD.md"
-DATASET_ID_RE = re.compile(r"^(?P<namespace>[\w-]+(?:/[\w-]+)*)/(?P<name>[\w-]+?)-v(?P<version>\d+)$")
+# Minari's own pattern (minari.dataset.minari_dataset.DATASET_ID_RE), with the namespace and version required.
+DATASET_ID_RE = re.compile(r"^(?P<namespace>[\w-][\w/-]*[\w-])/(?P<name>[\w-]+?)-v(?P<version>\d+)$")
 # What the face's SidewalkGymEnv takes besides the core env's own keywords (its Params fields).
 VIEW_KEYWORDS = ("opponent", "ego", "end_on_ego_done", "opponent_kwargs", "shield")
 OPPONENT_PLACES = ("self", "env", "controlled", "ego")
@@ -57,7 +58,7 @@ def check_dataset_id(dataset_id: Any) -> str:
     """``dataset_id`` once it has Minari's ``namespace/name-vN`` form, else a ``ValueError`` naming it."""
     if not isinstance(dataset_id, str) or not DATASET_ID_RE.match(dataset_id):
         raise ValueError(
-            f"dataset id {dataset_id!r} is not of Minari's form 'namespace/name-vN' (letters, digits, '_' and '-'; "
+            f"dataset id {dataset_id!r} is not of Minari's form 'namespace/name-vN' (letters, digits, '_' and '-', a namespace of 2 characters or more; "
             "for example 'sidewalk/grid-walks-v0')"
         )
     return dataset_id

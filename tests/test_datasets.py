@@ -117,7 +117,7 @@ def test_save_refuses_another_env_and_bad_input(root):
         datasets.save(env, "sidewalk/other-v0", env_config={"noise": 0.3})
     with pytest.raises(ValueError, match="nonsense"):
         datasets.save(env, "sidewalk/other-v0", env_config={"nonsense": 1})
-    for bad in ("walks", "sidewalk/walks", "walks-v0", "sidewalk/walks v0-v1", 3):
+    for bad in ("walks", "sidewalk/walks", "walks-v0", "sidewalk/walks v0-v1", "s/walks-v0", 3):
         with pytest.raises(ValueError, match="namespace/name-vN"):
             datasets.save(env, bad, env_config={})
         with pytest.raises(ValueError, match="namespace/name-vN"):
