@@ -22,7 +22,7 @@ from sidewalk.opponents.proxy import ProxyMismatch, ProxyOpponent, demonstration
 # Grid: the Dijkstra planner with its deterministic tie-break; continuous: a keep-right convention walker.
 CASES = {
     "discrete": ("sidewalk/Discrete-v0", {"opponent": "dijkstra", "noise": 0.1, "max_steps": 60},
-                 ("dijkstra", {"tie_break": "progress"}), 20),
+                 ("dijkstra", {"tie_break": "progress"}), 30),
     "continuous": ("sidewalk/Continuous-v0", {"opponent": "prm", "noise": 0.05, "max_steps": 80},
                    ("convention", {"style": "keep_right"}), 16),
 }
@@ -147,10 +147,14 @@ def test_a_dataset_of_another_world_is_refused(root):
 def test_the_proxy_is_a_partner_of_the_gymnasium_face(root):
     env = gymnasium.make("sidewalk/Discrete-v0", opponent="proxy", noise=0.1,
                          opponent_kwargs={"dataset": "walks/discrete-train-v0", "data_path": str(root)})
-    driver = datasets.ScriptedDriver(env, "dijkstra", tie_break="progress")
-    _, info = env.reset(seed=0)
-    for _ in range(60):
-        _, _, terminated, truncated, info = env.step(driver(info))
-        if terminated or truncated:
-            break
-    assert info["agents"]["reached_goal"][1], "the proxy partner reached its goal"
+    driver = datasets.ScriptedDriver(env, "dijkstra")  # the recording's partner, now as agent 0
+    reached = 0
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        driver.reset()
+        for _ in range(60):
+            _, _, terminated, truncated, info = env.step(driver(info))
+            if terminated or truncated:
+                break
+        reached += bool(info["agents"]["reached_goal"][1])
+    assert reached >= 2, f"the proxy partner reached its goal in {reached} of 3 episodes"
