@@ -265,8 +265,6 @@ class PolicyOpponent(Opponent):
         self._policy, self._decode = self._rebuild(self.partner, env, sample)
         self._maps = [role_map(self.partner.domain, env.params, self.partner.ego, agent) if self.partner.ego is not None
                       else "same" for agent in self.controlled]
-        self._grid = self.partner.domain == "discrete"
-        self._half_turn_actions = torch.tensor(GRID_HALF_TURN_ACTIONS, device=env.device)
 
     @staticmethod
     def _rebuild(partner: Partner, env: SidewalkEnvBase, sample: bool):
@@ -299,18 +297,36 @@ class PolicyOpponent(Opponent):
             per_agent = self._decode(joint) if self._decode is not None else joint.unflatten(-1, (self.env.n_agents, -1))
             action = per_agent.index_select(1, self._controlled_index)
         else:
-            seen = observation.index_select(1, self._controlled_index)  # (B, C, ...)
-            turned = torch.tensor([m == "half_turn" for m in self._maps], device=observation.device)
-            if bool(turned.any()):
-                shape = (1, -1, *[1] * (seen.dim() - 2))
-                seen = torch.where(turned.view(shape), turn_observation(seen, self.env.layout), seen)
-            flat = seen.flatten(0, 1)
-            action = self._policy(TensorDict({"observation": flat}, batch_size=[flat.shape[0]])).get("action")
-            action = action.unflatten(0, seen.shape[:2])
-            if self._grid and bool(turned.any()):
-                action = torch.where(turned.view(1, -1), self._half_turn_actions[action], action)
-        joint = tensordict.get(ACTION_KEY, None)
-        joint = self.env.full_action_spec[ACTION_KEY].zero() if joint is None else joint.clone()
-        joint.index_copy_(1, self._controlled_index, action.to(joint.dtype))
-        tensordict.set(ACTION_KEY, joint)
-        return tensordict
+            action = play_roles(self._policy, observation, self._controlled_index, self._maps, self.env.layout)
+        return write_actions(self, tensordict, action)
+
+
+def play_roles(
+    policy: Any, observation: torch.Tensor, controlled: torch.Tensor, maps: list[str], layout: Any
+) -> torch.Tensor:
+    """The actions (B, C[, 2]) of the agents ``controlled`` (int64 (C,)) of a one-agent ``policy`` (a TensorDict
+    module from ``"observation"`` to ``"action"``) trained as another agent: each agent's observation from
+    ``observation`` (B, N, ...), turned by half a turn where its ``maps`` entry (``role_map``) says ``"half_turn"``,
+    and a grid action turned back (UP↔DOWN, LEFT↔RIGHT; a continuous action is unchanged by a rotation)."""
+    seen = observation.index_select(1, controlled)  # (B, C, ...)
+    turned = torch.tensor([m == "half_turn" for m in maps], device=observation.device)
+    if bool(turned.any()):
+        shape = (1, -1, *[1] * (seen.dim() - 2))
+        seen = torch.where(turned.view(shape), turn_observation(seen, layout), seen)
+    flat = seen.flatten(0, 1)
+    action = policy(TensorDict({"observation": flat}, batch_size=[flat.shape[0]])).get("action")
+    action = action.unflatten(0, seen.shape[:2])
+    if hasattr(layout, "rows") and bool(turned.any()):
+        half_turn = torch.tensor(GRID_HALF_TURN_ACTIONS, device=action.device)
+        action = torch.where(turned.view(1, -1), half_turn[action], action)
+    return action
+
+
+def write_actions(opponent: Opponent, tensordict: TensorDictBase, action: torch.Tensor) -> TensorDictBase:
+    """``tensordict`` with ``action`` (B, C[, 2]) written into the joint action's columns of ``opponent``'s
+    controlled agents (the joint action made of zeros where there is none yet)."""
+    joint = tensordict.get(ACTION_KEY, None)
+    joint = opponent.env.full_action_spec[ACTION_KEY].zero() if joint is None else joint.clone()
+    joint.index_copy_(1, opponent._controlled_index, action.to(joint.dtype))
+    tensordict.set(ACTION_KEY, joint)
+    return tensordict
