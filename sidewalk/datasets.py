@@ -246,6 +246,7 @@ def _make_kwargs(env: gymnasium.Env, env_config: Mapping[str, Any]) -> dict[str,
     spec_kwargs = dict(env.spec.kwargs) if env.spec is not None else {}
     kwargs = {**spec_kwargs, **env_config}
     kwargs.pop("domain", None)
+    kwargs.pop("render_mode", None)  # how it is shown, not the world: gymnasium.make keeps it in the spec
     view = _face(env).view
     opponent_object = getattr(view, "opponent", None)
     kwargs["opponent"] = CENTRALIZED if opponent_object is None else type(opponent_object).name
@@ -320,6 +321,40 @@ def pins_of(dataset: minari.MinariDataset) -> dict[str, Any]:
     return json.loads(text)
 
 
+def check_can_append(
+    env: gymnasium.Env,
+    dataset_id: str,
+    *,
+    env_config: Mapping[str, Any],
+    data_path: str | os.PathLike | None = None,
+    driver: str = "a scripted policy",
+) -> dict[str, Any]:
+    """The pins ``save`` would write for episodes of ``env`` (made with ``env_config``) under ``dataset_id``; a
+    ``ValueError`` naming each difference when that dataset exists under another env (so a recorder can refuse
+    before any episode is played)."""
+    import minari
+
+    check_dataset_id(dataset_id)
+    env_id = env.spec.id if env.spec is not None else _env_id(_domain(_face(env)))
+    pins = {
+        "env_id": env_id,
+        "env_version": env_version(env_id),
+        "sidewalk_version": __version__,
+        "driver": driver,
+        "make_kwargs": _make_kwargs(env, env_config),
+    }
+    pins["env_config"] = pinned_config(env, pins["make_kwargs"])
+    with datasets_root(data_path) as root:
+        if not (root / dataset_id / "data").is_dir():
+            return pins
+        before = pins_of(minari.load_dataset(dataset_id))
+    if before["env_config"] != pins["env_config"] or before["env_id"] != env_id:
+        raise ValueError(f"dataset {dataset_id!r} was recorded under another env: "
+                         f"{'; '.join(_differences(before, pins)) or 'its env id differs'}; "
+                         "save these episodes under another id")
+    return pins
+
+
 def save(
     collector: minari.DataCollector,
     dataset_id: str,
@@ -336,26 +371,10 @@ def save(
     env made with ``env_config`` (``pinned_config``) in the metadata, and writes the data card beside the data."""
     import minari
 
-    check_dataset_id(dataset_id)
-    domain = _domain(_face(collector.env))
-    env_id = collector.env.spec.id if collector.env.spec is not None else _env_id(domain)
-    pins = {
-        "env_id": env_id,
-        "env_version": env_version(env_id),
-        "sidewalk_version": __version__,
-        "driver": driver,
-        "make_kwargs": _make_kwargs(collector.env, env_config),
-    }
-    pins["env_config"] = pinned_config(collector.env, pins["make_kwargs"])
+    pins = check_can_append(collector.env, dataset_id, env_config=env_config, data_path=data_path, driver=driver)
     with datasets_root(data_path) as root:
-        exists = (root / dataset_id / "data").is_dir()
-        if exists:
+        if (root / dataset_id / "data").is_dir():
             dataset = minari.load_dataset(dataset_id)
-            before = pins_of(dataset)
-            if before["env_config"] != pins["env_config"] or before["env_id"] != env_id:
-                raise ValueError(f"dataset {dataset_id!r} was recorded under another env: "
-                                 f"{'; '.join(_differences(before, pins)) or 'its env id differs'}; "
-                                 "save these episodes under another id")
             collector.add_to_dataset(dataset)
         else:
             with warnings.catch_warnings():  # Minari's nudges for fields we leave out (code permalink, email, ...)

@@ -123,6 +123,8 @@ def test_the_wheel_carries_every_config_and_runner(wheel):
     assert configs and configs <= names, sorted(configs - names)
     assert runners <= names, sorted(runners - names)
     assert packages <= names, f"a subpackage is missing from [tool.setuptools] packages: {sorted(packages - names)}"
+    page = {f"sidewalk/play/static/{path.name}" for path in (ROOT / "sidewalk" / "play" / "static").iterdir()}
+    assert page <= names, f"sidewalk-play's page is missing from the wheel: {sorted(page - names)}"
 
 
 def test_the_installed_train_command_runs_outside_the_clone(installed, tmp_path):

@@ -1,0 +1,96 @@
+// The page only sends keys and shows what the server's env draws: the dynamics live in the package, not here.
+"use strict";
+const GRID_KEYS = { ArrowUp: "up", ArrowDown: "down", ArrowLeft: "left", ArrowRight: "right" };
+const game = { info: null, held: new Set(), moves: [], paused: false, done: false, busy: false };
+const $ = (id) => document.getElementById(id);
+
+async function api(path, body) {
+  const options = body === undefined ? {} : {
+    method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) };
+  const response = await fetch(path, options);
+  const data = await response.json();
+  if (!response.ok) throw new Error(data.error || response.statusText);
+  return data;
+}
+
+function show(state) {
+  $("frame").src = state.frame;
+  $("outcome").textContent = state.outcome;
+  $("step").textContent = state.step;
+  $("return").textContent = state.return.toFixed(2);
+  $("episode").textContent = state.episode;
+  game.done = state.done;
+  $("status").dataset.done = String(state.done);
+  $("status").textContent = state.done ? `episode over: ${state.outcome}; R restarts` : (game.paused ? "paused" : "playing");
+}
+
+async function send(path, body) {
+  game.busy = true;
+  try {
+    show(await api(path, body));
+    $("error").textContent = "";
+  } catch (error) {
+    $("error").textContent = error.message;
+  } finally {
+    game.busy = false;
+  }
+}
+
+function keysHeld() {
+  const axis = (plus, minus) => (game.held.has(plus) ? 1 : 0) - (game.held.has(minus) ? 1 : 0);
+  return { accelerate: axis("ArrowUp", "ArrowDown"), turn: axis("ArrowLeft", "ArrowRight") };
+}
+
+function tick() {
+  if (game.paused || game.done || game.busy || !game.info) return;
+  if (game.info.domain === "discrete") {
+    const move = game.moves.shift();
+    if (move) send("/api/step", { move });
+  } else {
+    send("/api/step", keysHeld());
+  }
+}
+
+function togglePause() {
+  game.paused = !game.paused;
+  $("status").dataset.paused = String(game.paused);
+  $("status").textContent = game.paused ? "paused" : "playing";
+}
+
+function restart() {
+  game.moves = [];
+  send("/api/reset", {});
+}
+
+document.addEventListener("keydown", (event) => {
+  if (event.key in GRID_KEYS) {
+    event.preventDefault();
+    game.held.add(event.key);
+    if (!event.repeat && game.moves.length < 8) game.moves.push(GRID_KEYS[event.key]);
+  } else if (event.key === " ") {
+    event.preventDefault();
+    togglePause();
+  } else if (event.key === "r" || event.key === "R") {
+    restart();
+  }
+});
+document.addEventListener("keyup", (event) => game.held.delete(event.key));
+$("pause").addEventListener("click", togglePause);
+$("restart").addEventListener("click", restart);
+
+(async () => {
+  try {
+    game.info = await api("/api/game");
+  } catch (error) {
+    $("error").textContent = error.message;
+    return;
+  }
+  const settings = Object.entries(game.info.partner_settings).map(([k, v]) => `${k}=${v}`).join(", ");
+  $("about").textContent = `${game.info.domain} sidewalk: you are the red agent (agent 0), walking to the red ` +
+    `star, against ${game.info.partner}, ${game.info.steps_per_s} steps a second.`;
+  $("settings").textContent = settings ? `Partner settings: ${settings}.` : "";
+  $("keys").textContent = `Keys: ${game.info.keys}; space pauses, R restarts.`;
+  $("recording").textContent = game.info.recording ? `Episodes are saved to the dataset ${game.info.recording}.` : "Episodes are not saved.";
+  show(await api("/api/state"));
+  setInterval(tick, 1000 / game.info.steps_per_s);
+})();

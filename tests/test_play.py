@@ -1,0 +1,220 @@
+"""sidewalk-play in a real browser: Playwright drives Debian's Chromium (headless) through the page by keystrokes,
+as a person would, against the package's env on the server; every played episode lands in a Minari dataset.
+
+No person plays here: the keys come from a small scripted driver that reads the true state on the server and
+presses what a person aiming for the goal would press.
+"""
+
+import json
+import math
+import shutil
+import socket
+import urllib.error
+import urllib.request
+
+import minari
+import pytest
+
+from sidewalk.play import build_server
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+needs_chromium = pytest.mark.skipif(
+    CHROMIUM is None, reason="no Chromium on this machine: apt-get install chromium (Debian's package)"
+)
+# Root runs Chromium without its sandbox; a closed network refuses Chromium's background connections.
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run", "--disable-quic"]
+
+
+@pytest.fixture
+def serve(tmp_path, monkeypatch):
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "datasets"))
+    servers = []
+
+    def start(*overrides: str, **options):
+        server = build_server(list(overrides), port=0, datasets=tmp_path / "datasets", **options)
+        server.start()
+        servers.append(server)
+        return server
+
+    yield start
+    for server in servers:
+        server.shutdown()
+        server.server_close()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if CHROMIUM is None:
+        pytest.skip("no Chromium on this machine: apt-get install chromium (Debian's package)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        chromium = playwright.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        yield chromium
+        chromium.close()
+
+
+def grid_move(info) -> str:
+    row, col = info["state"][0]
+    goal_row, goal_col = info["goal"][0]
+    if col != goal_col:
+        return "ArrowRight" if goal_col > col else "ArrowLeft"
+    return "ArrowDown" if goal_row > row else "ArrowUp"
+
+
+def continuous_keys(info) -> set[str]:
+    x, y, speed, heading = info["state"][0]
+    goal_x, goal_y = info["goal"][0]
+    off = (math.atan2(goal_y - y, goal_x - x) - heading + math.pi) % (2 * math.pi) - math.pi
+    keys = {"ArrowUp"} if speed < 0.6 else set()
+    if abs(off) > 0.1:
+        keys.add("ArrowLeft" if off > 0 else "ArrowRight")
+    return keys
+
+
+def play(page, server, press) -> int:
+    """Keys until the page shows the episode over; returns the steps played."""
+    steps = 0
+    while page.get_attribute("#status", "data-done") != "true":
+        assert steps < server.game.face.view.core.params.max_steps + 1
+        press(server.game.info, steps)
+        page.wait_for_function(f"Number(document.getElementById('step').textContent) > {steps}", timeout=10_000)
+        steps = int(page.inner_text("#step"))
+    return steps
+
+
+@needs_chromium
+def test_a_grid_episode_played_by_keys_reaches_the_goal_and_is_recorded(serve, browser):
+    server = serve("opponent=dijkstra")
+    page = browser.new_page()
+    page.goto(server.url)
+    page.wait_for_selector("#frame[src^='data:image/png']")
+    assert "against dijkstra" in page.inner_text("#about")
+    steps = play(page, server, lambda info, _: page.keyboard.press(grid_move(info)))
+    assert page.inner_text("#outcome") == "reached the goal"
+    dataset = minari.load_dataset("sidewalk-play/discrete-dijkstra-v0")
+    assert dataset.total_episodes == 1 and dataset.total_steps == steps
+    episode = next(dataset.iterate_episodes())
+    assert len(episode.actions) == steps and bool(episode.infos["is_success"][-1])
+    page.close()
+
+
+@needs_chromium
+def test_a_continuous_episode_played_by_held_keys_reaches_the_goal_and_is_recorded(serve, browser):
+    server = serve("env=continuous", "opponent=prm")
+    page = browser.new_page()
+    page.goto(server.url)
+    page.wait_for_selector("#frame[src^='data:image/png']")
+    held: set[str] = set()
+
+    def press(info, _):
+        wanted = continuous_keys(info)
+        for key in held - wanted:
+            page.keyboard.up(key)
+        for key in wanted - held:
+            page.keyboard.down(key)
+        held.clear()
+        held.update(wanted)
+
+    steps = play(page, server, press)
+    assert page.inner_text("#outcome") == "reached the goal"
+    dataset = minari.load_dataset("sidewalk-play/continuous-prm-v0")
+    assert dataset.total_episodes == 1 and dataset.total_steps == steps
+    page.close()
+
+
+@needs_chromium
+def test_pause_holds_the_game_and_restart_starts_the_next_world(serve, browser):
+    server = serve("opponent=dijkstra", record=False)
+    page = browser.new_page()
+    page.goto(server.url)
+    page.wait_for_selector("#frame[src^='data:image/png']")
+    page.keyboard.press(" ")
+    assert page.get_attribute("#status", "data-paused") == "true"
+    page.keyboard.press("ArrowRight")
+    page.wait_for_timeout(600)  # more than two steps at the grid's four a second
+    assert page.inner_text("#step") == "0"
+    page.keyboard.press(" ")
+    page.wait_for_function("document.getElementById('step').textContent === '1'", timeout=5_000)
+    page.keyboard.press("r")
+    page.wait_for_function("document.getElementById('episode').textContent === '2'", timeout=5_000)
+    assert page.inner_text("#step") == "0"
+    page.close()
+
+
+def request(server, path: str, body: bytes | None = None, method: str | None = None):
+    try:
+        with urllib.request.urlopen(urllib.request.Request(server.url.rstrip("/") + path, data=body,
+                                                           method=method)) as response:
+            return response.status, response.read()
+    except urllib.error.HTTPError as error:
+        return error.code, error.read()
+
+
+@pytest.mark.parametrize("body, words", [
+    (b"not json", "not JSON"),
+    (b'{"move": "jump"}', "move='jump' is not valid; valid: up, down, left, right"),
+    (b'[1, 2]', "is a JSON object"),
+])
+def test_a_malformed_message_is_a_400_naming_it_and_the_server_goes_on(serve, body, words):
+    server = serve("opponent=dijkstra", record=False)
+    status, reply = request(server, "/api/step", body)
+    assert status == 400 and words in json.loads(reply)["error"]
+    status, reply = request(server, "/api/step", b'{"move": "right"}')
+    assert status == 200 and json.loads(reply)["step"] == 1
+
+
+def test_a_continuous_message_takes_only_minus_one_zero_or_one(serve):
+    server = serve("env=continuous", "opponent=prm", record=False)
+    status, reply = request(server, "/api/step", b'{"accelerate": 5, "turn": 0}')
+    assert status == 400 and json.loads(reply)["error"] == "accelerate=5 is not valid; valid: -1, 0, 1"
+
+
+@pytest.mark.parametrize("path", ["/../pyproject.toml", "/static/play.js", "/etc/passwd", "/api/../../x", "/play.py"])
+def test_only_the_page_and_its_assets_are_served(serve, path):
+    server = serve("opponent=dijkstra", record=False)
+    assert request(server, path)[0] == 404
+    for asset in ("/", "/play.js", "/play.css"):
+        assert request(server, asset)[0] == 200
+
+
+def test_it_listens_on_this_machine_only_unless_told(serve):
+    assert serve("opponent=dijkstra", record=False).server_address[0] == "127.0.0.1"
+
+
+def run_play(runner, *argv):
+    return runner("play").main(list(argv))
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["opponent=nobody", "--no-browser"], "opponent"),
+    (["opponent=self", "--no-browser"], "opponent='self' is a learner's view, not a partner"),
+    (["env=continuous", "opponent=dijkstra", "--no-browser", "--no-record"], "dijkstra"),
+    (["noise=-1", "--no-browser", "--no-record"], "noise"),
+    (["--dataset-id", "no-version", "--no-browser"], "is not of Minari's form"),
+])
+def test_bad_input_is_one_error_line_before_serving(runner, capsys, tmp_path, argv, words):
+    assert run_play(runner, *argv, "--datasets", str(tmp_path)) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and words in err[0], err
+
+
+def test_a_port_in_use_is_one_error_line(runner, capsys, tmp_path):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert run_play(runner, "--port", str(port), "--no-browser", "--no-record") == 2
+    assert capsys.readouterr().err.strip() == (f"error: [Errno 98] port {port} on 127.0.0.1 is in use; pick another "
+                                                "with --port (0: any free one)")
+
+
+def test_a_dataset_of_another_world_is_refused_before_serving(serve, runner, capsys, tmp_path):
+    server = serve("opponent=dijkstra", dataset_id="mine/walks-v0")
+    while not server.game.step({"move": "right"})["done"]:
+        pass
+    assert run_play(runner, "opponent=dijkstra", "noise=0.2", "--dataset-id", "mine/walks-v0",
+                    "--datasets", str(tmp_path / "datasets"), "--no-browser") == 2
+    err = capsys.readouterr().err
+    assert "was recorded under another env" in err and "noise" in err
