@@ -130,6 +130,11 @@ class ConventionOpponent(Opponent):
             return self._grid_moves(state, goal, done, present, waiting)
         return self._unicycle_controls(state, goal, done, present, waiting)
 
+    def _lane_side(self) -> int | torch.Tensor:
+        """+1: the lane lies to the agent's left of the centre line, -1 to its right (a partner that picks its side
+        per world returns a (B, C) tensor, 0 where it keeps to the centre line)."""
+        return int(self._side)
+
     # ---- when to wait -----------------------------------------------------------------------------------------
 
     def _waiting(
@@ -180,7 +185,7 @@ class ConventionOpponent(Opponent):
         x, y = own[..., 0], own[..., 1]
         heading = torch.where(own_goal[..., 0] >= x, 1.0, -1.0)  # +1: walking toward +x, whose left is +y
         centre = layout.width_m / 2
-        lane_y = centre + heading * self._side * self._lane_m
+        lane_y = centre + heading * self._lane_side() * self._lane_m
         merging = (own_goal[..., 0] - x).abs() <= MERGE_M
         way_x = torch.where(merging, own_goal[..., 0], x + heading * LOOKAHEAD_M)
         way_y = torch.where(merging, own_goal[..., 1], lane_y)
@@ -221,7 +226,7 @@ class ConventionOpponent(Opponent):
         goal_row, goal_col = goal[:, index, 0], goal[:, index, 1]
         heading = torch.where(goal_col >= col, 1, -1)  # +1: walking toward +col, whose left is a smaller row
         centre = round(layout.center_row)
-        lane_row = centre - heading * int(self._side) * self._lane_cells
+        lane_row = centre - heading * self._lane_side() * self._lane_cells
         # Back onto the goal's row once the steps left along the sidewalk are no more than those across.
         target_row = torch.where((goal_col - col).abs() <= (lane_row - goal_row).abs(), goal_row, lane_row)
         yielding = self._yielding(

@@ -4,7 +4,7 @@ heldout``, docs/guide/adhoc.md).
 
 ``POPULATIONS`` is the one table of both: per domain, a *training* and a *held-out* population, disjoint by
 member. The held-out one holds the domain's planner, the five conventions at their defaults
-(``sidewalk.opponents.convention``) and, in the continuous world, the self-play policies of MAPPO's three seeds; the
+(``sidewalk.opponents.convention``), the salsa walker (``sidewalk.opponents.salsa``) and, in the continuous world, the self-play policies of MAPPO's three seeds; the
 training one holds the planner and the conventions at other settings and IPPO's three self-play seeds. Learned
 members are policy files shipped in the package (``sidewalk/partners/<domain>/<member>/policy.pt``, read as weights
 only, like any ``policy.pt``), so no one trains to use them.
@@ -74,6 +74,7 @@ POPULATIONS: dict[str, dict[str, dict[str, Member]]] = {
         "heldout": {
             "prm": Member("prm"),
             **_HELDOUT_CONVENTIONS,
+            "salsa": Member("salsa"),
             **{f"mappo_seed{seed}": _learned(f"mappo_seed{seed}") for seed in range(3)},
         },
     },
@@ -83,7 +84,9 @@ POPULATIONS: dict[str, dict[str, dict[str, Member]]] = {
             "dijkstra_near": Member("dijkstra", {"avoid_radius_cells": 1, "avoid_cost": 5.0, "tie_break": "progress"}),
             **_TRAINING_CONVENTIONS,
         },
-        "heldout": {"dijkstra": Member("dijkstra", {"tie_break": "progress"}), **_HELDOUT_CONVENTIONS},
+        "heldout": {
+            "dijkstra": Member("dijkstra", {"tie_break": "progress"}), **_HELDOUT_CONVENTIONS, "salsa": Member("salsa"),
+        },
     },
 }
 
