@@ -5,7 +5,7 @@ Metric names (every tool reads these keys): ``success_rate``, ``collision_rate``
 ``min_separation``, ``wait_steps``, ``cost``, ``shield_rate`` (shielded views: the share of the agents' moving steps
 whose action the shield replaced); per agent as ``agent0/success_rate``...; in an ego view also ``ego/...`` and
 ``other/...``; and for the whole team ``team/success_rate`` (every agent reached its goal), ``makespan`` and
-``deadlock_rate``.
+``deadlock_rate``; in two-agent worlds the social measures of the pass, ``social/...`` (``sidewalk.social``).
 
 Definitions: rates are fractions of episodes (per agent, or of agent-episodes for the overall figure); ``return``
 is an agent's undiscounted episode return (its own reward, cooperative term included); ``cost`` its episode cost
@@ -45,6 +45,7 @@ from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from sidewalk.envs.base import INFO_KEYS
+from sidewalk.social import SocialTally
 
 DEADLOCK_WINDOW = 30  # steps
 DEADLOCK_CELLS = 1
@@ -77,6 +78,7 @@ class EpisodeRecord:
     trajectories: np.ndarray | None = None  # (T, k, N, 2) positions of the first k worlds, NaN once finished
     ego: int | None = None
     distinct_episodes: int | None = None  # how many different trajectories the worlds played
+    social: dict[str, float] | None = None  # two-agent worlds: the social measures (sidewalk.social)
     extras: dict = field(default_factory=dict)
 
 
@@ -244,6 +246,7 @@ class _EpisodeTally:
     record_trajectories: int
     trajectory: list[np.ndarray]
     episode_class: torch.Tensor  # (B,): worlds with one class have played the same trajectory so far
+    social: SocialTally | None  # two-agent worlds only
 
     @classmethod
     def begin(cls, env: EnvBase, world: TensorDictBase, record_trajectories: int) -> _EpisodeTally:
@@ -283,6 +286,8 @@ class _EpisodeTally:
             record_trajectories=record_trajectories,
             trajectory=[start[:record_trajectories].cpu().numpy()] if record_trajectories else [],
             episode_class=distinct_rows(start.flatten(1))[1],
+            social=SocialTally.begin(world.get("state"), goal, grid, getattr(core.params, "dt_s", 1.0),
+                                     getattr(core.params, "agent_radius_m", 0.5)) if n_agents == 2 else None,
         )
 
     def add_step(self, step: int, world: TensorDictBase, done: torch.Tensor) -> None:
@@ -296,6 +301,9 @@ class _EpisodeTally:
         self._add_waiting(step, now, was_active & live & ~info["reached_goal"])
         if self.pair.shape[0] > 1:
             self._add_separation(now, world.get("present").squeeze(-1), running)
+        if self.social is not None:
+            present = world.get("present").squeeze(-1).bool()
+            self.social.add_step(world.get("state"), was_active & live & present)
         for key in INFO_KEYS:
             self.final_info[key] = torch.where(live, info[key], self.final_info[key])
         if self.record_trajectories:
@@ -362,6 +370,7 @@ class _EpisodeTally:
             trajectories=np.stack(self.trajectory) if self.record_trajectories else None,
             ego=ego,
             distinct_episodes=int(self.episode_class.max()) + 1,
+            social=self.social.summary(ego) if self.social is not None else None,
         )
 
 
@@ -444,6 +453,7 @@ def summarize(record: EpisodeRecord) -> dict[str, float]:
     metrics["episodes"] = float(record.returns.shape[0])
     if record.distinct_episodes is not None:
         metrics["distinct_episodes"] = float(record.distinct_episodes)
+    metrics.update(record.social or {})
     for agent in range(n_agents):
         for name, value in _group_metrics(record, [agent]).items():
             metrics[f"agent{agent}/{name}"] = value

@@ -44,6 +44,7 @@ from sidewalk.report.tables import (
     safety_table,
 )
 from sidewalk.run_folder import SUMMARY, UnsafeFile
+from sidewalk.social import SOCIAL_KEYS
 
 log = logging.getLogger(__name__)
 
@@ -552,6 +553,9 @@ def _family_finals(family: str, members: Sequence[Condition], settings: Settings
         if condition.flat.get("env.layout", "sidewalk") != "sidewalk":
             # The scenarios' coordination metrics (sidewalk.evaluate): whole-team keys of summary.json.
             team += [final_of(condition, "team", key, key, settings) for key in SCENARIO_METRICS]
+        # The social measures of the pass (sidewalk.social), where the runs' evaluations recorded them.
+        social = [key for key in SOCIAL_KEYS if any(key in run.summary for run in condition.runs)]
+        team += [final_of(condition, "team", key, key, settings) for key in social]
         for final in team:
             final_rows.append((condition, "team", final))
             numbers.add_final(f"family:{family}", condition, final)

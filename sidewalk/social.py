@@ -1,0 +1,161 @@
+"""How a pass feels: the social measures of two agents meeting on the sidewalk, per episode, for every world at once.
+
+Measured on the two-agent worlds (``sidewalk.evaluate`` adds them to its metrics as ``social/...``; worlds of other
+sizes have none), from the agents' states step by step, while both are present and neither is done:
+
+- ``salsa_count``: mirrored dodges, steps in which both agents, walking toward each other and not yet past, step
+  sideways toward the same side of the sidewalk (grid: both change row the same way; continuous: both move at least
+  ``LATERAL_STEP_M`` across the same way), so each stays in the other's way;
+- ``min_ttc``: the least time to collision over the episode, the two moving on at their current velocities until
+  their bodies touch (continuous: seconds, discs of the agent radius; grid: steps until their centres are half a cell
+  apart, velocities from the last step's moves); the median over episodes (a pass that never closes in is inf);
+- ``jerk``: the root mean square of the rate of change of acceleration (m/s³) of the learner's agent (the ego; all
+  agents in other views), the velocity taken from the state's speed and heading; continuous only (NaN in the grid);
+- ``intrusion_steps``: steps with the other agent inside the personal space, ``PERSONAL_SPACE_M`` beyond the
+  bodies (CrowdNav's discomfort distance; grid: a neighbouring cell, diagonals included); ``intrusion_rate`` the share
+  of episodes with at least one;
+- who yields first: the first agent to stray ``DEVIATION_M`` (grid: a row) from the straight line from its start to
+  its goal while the two are still to pass; the share of episodes in which agent 0, agent 1 (the ego and the
+  partner in an ego view) or both in the same step yielded first, and ``no_yield`` where neither did.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+PERSONAL_SPACE_M = 0.2  # beyond the two bodies: CrowdNav's discomfort distance (Chen et al. 2019)
+GRID_PERSONAL_SPACE_CELLS = 1.5  # centres within this: the same or a neighbouring cell, diagonals included
+LATERAL_STEP_M = 0.05  # a sideways step of a continuous agent (a walking step is 0.1 m at 0.5 m/s)
+DEVIATION_M = 0.2  # off its line by this much, an agent has yielded (grid: one row)
+GRID_COLLIDE_CELLS = 0.5
+# Every key SocialTally.summary may write (ego views name the ego and the partner; other views agent 0 and 1).
+SOCIAL_KEYS = tuple(f"social/{name}" for name in (
+    "salsa_count", "min_ttc", "jerk", "intrusion_steps", "intrusion_rate", "ego_yields_first",
+    "partner_yields_first", "agent0_yields_first", "agent1_yields_first", "both_yield_first", "no_yield"))
+
+
+@dataclass
+class SocialTally:
+    """Running social measures of B two-agent worlds (see the module docstring)."""
+
+    grid: bool
+    dt_s: float
+    collide_at: float
+    personal_space: float
+    start: torch.Tensor  # (B, 2, 2) positions at the reset
+    goal: torch.Tensor  # (B, 2, 2)
+    previous: torch.Tensor  # (B, 2, 2)
+    velocity: torch.Tensor | None  # (B, 2, 2), the last step's
+    acceleration: torch.Tensor | None  # (B, 2, 2), the last step's
+    salsa: torch.Tensor  # (B,)
+    intrusions: torch.Tensor  # (B,)
+    min_ttc: torch.Tensor  # (B,)
+    jerk_squares: torch.Tensor  # (B, 2)
+    jerk_steps: torch.Tensor  # (B, 2)
+    first_yield: torch.Tensor  # (B,) long: -1 none yet, 0 or 1 the agent, 2 both in one step
+
+    @classmethod
+    def begin(cls, state: torch.Tensor, goal: torch.Tensor, grid: bool, dt_s: float, radius_m: float) -> SocialTally:
+        """Nothing measured yet, for worlds whose agents start at ``state`` (B, 2, ≥2) with goals ``goal`` (B, 2, 2)."""
+        start = state[..., :2].float()
+        n_worlds, device = start.shape[0], start.device
+
+        def zeros(*shape: int) -> torch.Tensor:
+            return torch.zeros(n_worlds, *shape, device=device)
+
+        return cls(
+            grid=grid, dt_s=1.0 if grid else dt_s,
+            collide_at=GRID_COLLIDE_CELLS if grid else 2 * radius_m,
+            personal_space=GRID_PERSONAL_SPACE_CELLS if grid else 2 * radius_m + PERSONAL_SPACE_M,
+            start=start, goal=goal.float(), previous=start, velocity=None, acceleration=None,
+            salsa=zeros(), intrusions=zeros(), min_ttc=torch.full((n_worlds,), math.inf, device=device),
+            jerk_squares=zeros(2), jerk_steps=zeros(2),
+            first_yield=torch.full((n_worlds,), -1, dtype=torch.long, device=device),
+        )
+
+    def _axes(self) -> tuple[int, int]:
+        return (1, 0) if self.grid else (0, 1)  # (along, across): grid (row, col); continuous (x, y)
+
+    def add_step(self, state: torch.Tensor, active: torch.Tensor) -> None:
+        """Add a step that left the agents at ``state`` (B, 2, ≥2); ``active`` (B, 2): present, running, not done."""
+        now = state[..., :2].float()
+        both = active.all(-1)
+        velocity = (now - self.previous) if self.grid else _unicycle_velocity(state)
+        along, across = self._axes()
+        heading = torch.sign(self.goal[..., along] - self.start[..., along])  # (B, 2)
+        to_pass = (heading[:, 0] * heading[:, 1] < 0) & (heading[:, 0] * (now[:, 1, along] - now[:, 0, along]) > 0)
+        sideways = now[..., across] - self.previous[..., across]
+        threshold = 0.5 if self.grid else LATERAL_STEP_M
+        mirrored = (sideways.abs() >= threshold).all(-1) & (torch.sign(sideways[:, 0]) == torch.sign(sideways[:, 1]))
+        self.salsa += (mirrored & to_pass & both).float()
+        gap = (now[:, 1] - now[:, 0]).norm(dim=-1)
+        self.intrusions += ((gap < self.personal_space) & both).float()
+        # Velocities are cells a step in the grid, m/s in the continuous world: times in steps, in seconds.
+        ttc = _time_to_collision(now[:, 1] - now[:, 0], velocity[:, 1] - velocity[:, 0], self.collide_at)
+        self.min_ttc = torch.where(both, torch.minimum(self.min_ttc, ttc), self.min_ttc)
+        self._add_jerk(velocity, active)
+        self._add_yield(now, to_pass & both)
+        self.previous = now
+
+    def _add_jerk(self, velocity: torch.Tensor, active: torch.Tensor) -> None:
+        if self.grid:
+            return
+        if self.velocity is not None:
+            acceleration = (velocity - self.velocity) / self.dt_s
+            if self.acceleration is not None:
+                jerk = ((acceleration - self.acceleration) / self.dt_s).square().sum(-1)
+                self.jerk_squares += jerk * active
+                self.jerk_steps += active.float()
+            self.acceleration = acceleration
+        self.velocity = velocity
+
+    def _add_yield(self, now: torch.Tensor, meeting: torch.Tensor) -> None:
+        line = self.goal - self.start
+        offset = now - self.start
+        off_line = (line[..., 0] * offset[..., 1] - line[..., 1] * offset[..., 0]).abs() / line.norm(dim=-1).clamp(min=1e-6)
+        strayed = (off_line >= (1.0 if self.grid else DEVIATION_M)) & meeting.unsqueeze(-1)
+        who = torch.where(strayed.all(-1), 2, torch.where(strayed[:, 0], 0, torch.where(strayed[:, 1], 1, -1)))
+        self.first_yield = torch.where(self.first_yield < 0, who, self.first_yield)
+
+    def summary(self, ego: int | None) -> dict[str, float]:
+        """The measures as ``social/...`` metrics over the episodes (see the module docstring)."""
+        first = self.first_yield.cpu().numpy()
+        jerk = (self.jerk_squares / self.jerk_steps.clamp(min=1)).sqrt().cpu().numpy()
+        steps = self.jerk_steps.cpu().numpy()
+        learner = [ego] if ego is not None else [0, 1]
+        learner_jerk = jerk[:, learner][steps[:, learner] > 0]
+        names = ("ego", "partner") if ego is not None else ("agent0", "agent1")
+        order = (ego, 1 - ego) if ego is not None else (0, 1)
+        return {
+            "social/salsa_count": float(self.salsa.mean()),
+            "social/min_ttc": float(np.median(self.min_ttc.cpu().numpy())),
+            "social/jerk": float(learner_jerk.mean()) if learner_jerk.size and not self.grid else math.nan,
+            "social/intrusion_steps": float(self.intrusions.mean()),
+            "social/intrusion_rate": float((self.intrusions > 0).float().mean()),
+            f"social/{names[0]}_yields_first": float((first == order[0]).mean()),
+            f"social/{names[1]}_yields_first": float((first == order[1]).mean()),
+            "social/both_yield_first": float((first == 2).mean()),
+            "social/no_yield": float((first < 0).mean()),
+        }
+
+
+def _unicycle_velocity(state: torch.Tensor) -> torch.Tensor:
+    """(B, N, 2) m/s from the state's speed and heading (x, y, v, θ)."""
+    speed, heading = state[..., 2], state[..., 3]
+    return torch.stack([speed * torch.cos(heading), speed * torch.sin(heading)], -1)
+
+
+def _time_to_collision(relative: torch.Tensor, closing: torch.Tensor, collide_at: float) -> torch.Tensor:
+    """(B,) time until |relative + closing·t| = ``collide_at`` going on at constant velocity (0 when already there,
+    inf when they never get that close); ``closing`` in units per time unit."""
+    a = closing.square().sum(-1)
+    b = 2 * (relative * closing).sum(-1)
+    c = relative.square().sum(-1) - collide_at**2
+    discriminant = b.square() - 4 * a * c
+    root = (-b - discriminant.clamp(min=0).sqrt()) / (2 * a).clamp(min=1e-12)
+    meets = (discriminant >= 0) & (b < 0) & (a > 0)
+    return torch.where(c <= 0, torch.zeros_like(c), torch.where(meets, root, torch.full_like(c, math.inf)))

@@ -1,0 +1,99 @@
+"""The social measures of a pass (sidewalk.social) on hand-built steps with known answers, and in real evaluations."""
+
+import math
+
+import pytest
+import torch
+
+from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
+from sidewalk.evaluate import evaluate
+from sidewalk.social import SocialTally
+from sidewalk.views import view_for_opponent
+
+RADIUS_M = 0.2
+BOTH = torch.ones(1, 2, dtype=torch.bool)
+
+
+def grid_tally(rows_cols, goals):
+    return SocialTally.begin(torch.tensor([rows_cols]), torch.tensor([goals]), grid=True, dt_s=1.0, radius_m=0.5)
+
+
+def unicycle(*agents):
+    """One world's continuous state (1, 2, 4) from (x, y, speed, heading) per agent."""
+    return torch.tensor([agents], dtype=torch.float32)
+
+
+def continuous_tally(state, goals):
+    return SocialTally.begin(state, torch.tensor([goals], dtype=torch.float32), grid=False, dt_s=0.2, radius_m=RADIUS_M)
+
+
+def test_a_mirrored_dodge_is_one_salsa_step_and_opposite_dodges_are_none():
+    # Agent 0 walks to +col, agent 1 to -col, both on row 2, not yet past each other.
+    start, goals = [[2, 3], [2, 8]], [[2, 12], [2, 0]]
+    mirrored = grid_tally(start, goals)
+    mirrored.add_step(torch.tensor([[[1, 3], [1, 8]]]), BOTH)  # both step UP: each into the other's new row
+    assert mirrored.summary(ego=0)["social/salsa_count"] == 1.0
+    passing = grid_tally(start, goals)
+    passing.add_step(torch.tensor([[[1, 3], [3, 8]]]), BOTH)  # UP and DOWN: out of each other's way
+    assert passing.summary(ego=0)["social/salsa_count"] == 0.0
+
+
+def test_a_head_on_approach_has_the_time_its_gap_takes_to_close():
+    start = unicycle((1.0, 1.0, 0.5, 0.0), (3.0, 1.0, 0.5, math.pi))
+    tally = continuous_tally(start, [[4.0, 1.0], [0.0, 1.0]])
+    tally.add_step(start, BOTH)
+    # A 2 m gap closing at 1 m/s until the discs (0.4 m together) touch.
+    assert tally.summary(ego=0)["social/min_ttc"] == pytest.approx(1.6, abs=1e-5)
+    parallel = continuous_tally(unicycle((1.0, 0.5, 0.5, 0.0), (1.0, 1.5, 0.5, 0.0)), [[4.0, 0.5], [4.0, 1.5]])
+    parallel.add_step(unicycle((1.1, 0.5, 0.5, 0.0), (1.1, 1.5, 0.5, 0.0)), BOTH)
+    assert parallel.summary(ego=0)["social/min_ttc"] == math.inf
+
+
+def test_constant_acceleration_has_no_jerk_and_a_change_of_it_has():
+    def run(speeds):
+        tally = continuous_tally(unicycle((0.5, 0.5, 0.0, 0.0), (3.5, 1.5, 0.0, math.pi)), [[4.0, 0.5], [0.0, 1.5]])
+        for speed in speeds:
+            tally.add_step(unicycle((0.5, 0.5, speed, 0.0), (3.5, 1.5, 0.0, math.pi)), BOTH)
+        return tally.summary(ego=0)["social/jerk"]
+
+    assert run([0.1, 0.2, 0.3, 0.4]) == pytest.approx(0.0, abs=1e-4)
+    # Accelerations 0.5, 0.5, -0.5 m/s² at 0.2 s a step: one jerk of -5 m/s³ over two measured steps.
+    assert run([0.1, 0.2, 0.3, 0.2]) == pytest.approx(math.sqrt(25 / 2), rel=1e-4)
+
+
+def test_an_agent_inside_the_personal_space_is_an_intrusion():
+    tally = continuous_tally(unicycle((1.0, 1.0, 0.0, 0.0), (3.0, 1.0, 0.0, math.pi)), [[4.0, 1.0], [0.0, 1.0]])
+    tally.add_step(unicycle((1.0, 1.0, 0.0, 0.0), (1.5, 1.0, 0.0, math.pi)), BOTH)  # 0.5 m < 0.4 + 0.2 m
+    tally.add_step(unicycle((1.0, 1.0, 0.0, 0.0), (1.7, 1.0, 0.0, math.pi)), BOTH)  # 0.7 m: outside
+    summary = tally.summary(ego=0)
+    assert summary["social/intrusion_steps"] == 1.0 and summary["social/intrusion_rate"] == 1.0
+
+
+def test_the_first_agent_off_its_line_yields_first():
+    tally = grid_tally([[2, 3], [2, 9]], [[2, 12], [2, 0]])
+    tally.add_step(torch.tensor([[[2, 4], [2, 8]]]), BOTH)  # both walk on
+    tally.add_step(torch.tensor([[[2, 5], [1, 8]]]), BOTH)  # the partner steps aside
+    tally.add_step(torch.tensor([[[3, 5], [1, 7]]]), BOTH)  # then the ego: too late to be first
+    summary = tally.summary(ego=0)
+    assert summary["social/partner_yields_first"] == 1.0 and summary["social/ego_yields_first"] == 0.0
+    assert summary["social/no_yield"] == 0.0
+
+
+@pytest.mark.parametrize("core_class, opponent", [(DiscreteSidewalkEnv, "dijkstra"), (ContinuousSidewalkEnv, "prm")])
+def test_a_real_evaluation_reports_every_measure(core_class, opponent):
+    metrics = evaluate(view_for_opponent(core_class(64, seed=0), opponent, 0), None, seed=0)
+    social = {key: value for key, value in metrics.items() if key.startswith("social/")}
+    assert len(social) == 9
+    shares = [social[f"social/{who}"] for who in ("ego_yields_first", "partner_yields_first", "both_yield_first", "no_yield")]
+    assert sum(shares) == pytest.approx(1.0)
+    assert social["social/salsa_count"] >= 0 and social["social/intrusion_rate"] <= 1
+    if core_class is ContinuousSidewalkEnv:
+        assert math.isfinite(social["social/jerk"]) and social["social/jerk"] > 0
+    else:
+        assert math.isnan(social["social/jerk"])  # the grid has no acceleration
+
+
+def test_worlds_of_three_agents_have_no_social_measures():
+    core = DiscreteSidewalkEnv(8, seed=0, layout="door", n_agents=3)
+    metrics = evaluate(view_for_opponent(core, "dijkstra", 0), None, seed=0)
+    assert not any(key.startswith("social/") for key in metrics)
