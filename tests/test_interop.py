@@ -100,7 +100,7 @@ def test_env_kwargs_pass_through_to_the_core():
 def test_bad_arguments_name_the_valid_values():
     with pytest.raises(TypeError, match="did you mean 'noise'"):
         gymnasium.make(DISCRETE, noize=0.1)
-    with pytest.raises(ValueError, match="'convention', 'dijkstra', 'policy', 'population', 'prm', 'random'"):
+    with pytest.raises(ValueError, match="'convention', 'dijkstra', 'policy', 'population', 'prm', 'proxy', 'random', 'salsa'"):
         gymnasium.make(DISCRETE, opponent="greedy")
     with pytest.raises(ValueError, match="dijkstra"):
         gymnasium.make(CONTINUOUS, opponent="dijkstra")

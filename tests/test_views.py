@@ -317,7 +317,7 @@ def test_views_without_an_opponent_reject_one():
 
 
 def test_unknown_opponent_names_the_valid_ones():
-    with pytest.raises(ValueError, match="'convention', 'dijkstra', 'policy', 'population', 'prm', 'random'"):
+    with pytest.raises(ValueError, match="'convention', 'dijkstra', 'policy', 'population', 'prm', 'proxy', 'random', 'salsa'"):
         make_view("ego", core("discrete"), opponent="greedy")
 
 
