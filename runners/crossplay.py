@@ -51,6 +51,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1: small networks)")
     parser.add_argument("--redraw", metavar="DIR", help="only redraw DIR's figures and report.md from its CSV")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--best-responses", nargs="+", metavar="RUN_OR_SWEEP",
+                        help="with --redraw DIR: runs trained against held-out partners, written as DIR's "
+                             "best_responses.csv (BR-Prox beside the ad-hoc score)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="crossplay: %(message)s", stream=sys.stderr)
 
@@ -67,8 +70,12 @@ def main(argv: list[str] | None = None) -> int:
         if not (Path(args.redraw) / CROSSPLAY_CSV).exists():
             print(f"error: {args.redraw} has no {CROSSPLAY_CSV}", file=sys.stderr)
             return 2
+        if args.best_responses and write_best_responses(args.redraw, args.best_responses) != 0:
+            return 2
         print(f"crossplay: {write_crossplay_report(args.redraw)}", file=sys.stderr)
         return 0
+    if args.best_responses:
+        parser.error("--best-responses goes with --redraw DIR (the matrix whose partners they answer)")
     if not args.runs:
         parser.error("give at least one RUN_DIR (or --redraw DIR)")
     if not args.out:
@@ -109,6 +116,20 @@ def main(argv: list[str] | None = None) -> int:
         f"crossplay: {out / CROSSPLAY_CSV} ({len(matrix.frame)} cells, {meta['wall_clock_s']:.1f} s), {report}",
         file=sys.stderr,
     )
+    return 0
+
+
+def write_best_responses(folder: str, runs: list[str]) -> int:
+    """``folder/best_responses.csv`` from the best-response runs; 2 with one error line where they do not fit."""
+    from sidewalk.report.crossplay import BEST_RESPONSES_CSV, best_responses_from_runs
+    from sidewalk.run_folder import atomic_write
+
+    try:
+        table = best_responses_from_runs(runs)
+    except (ValueError, FileNotFoundError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    atomic_write(Path(folder) / BEST_RESPONSES_CSV, lambda tmp: table.to_csv(tmp, index=False))
     return 0
 
 

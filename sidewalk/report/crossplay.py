@@ -33,7 +33,9 @@ CONVENTIONS_CSV = "conventions.csv"  # the convention each row's policy follows 
 NOTES = "notes.md"  # what the matrix shows, written by hand beside the CSV
 ADHOC_CSV = "adhoc.csv"  # the ad-hoc score of each condition (adhoc_table), beside the matrix
 ADHOC_COLUMNS = ("condition", "runs", "partners", "iqm", "low", "high", "mean", "distinct_low", "distinct_high",
-                 "note")
+                 "note", "br_prox_partners", "br_prox_iqm", "br_prox_low", "br_prox_high")
+# Beside a matrix: each held-out partner's best response (columns member, success, ...), ZSC-Eval's BR-Prox.
+BEST_RESPONSES_CSV = "best_responses.csv"
 REPORT = "report.md"
 # Heatmaps: CSV column -> (title, colour map); every value is a rate in [0, 1].
 HEATMAP_METRICS = {
@@ -131,27 +133,108 @@ def condition_table(frame: pd.DataFrame, metric: str) -> tuple[pd.DataFrame, pd.
     return mean.astype(float), pairs
 
 
-def adhoc_table(frame: pd.DataFrame) -> pd.DataFrame | None:
+def adhoc_table(frame: pd.DataFrame, best: dict[str, float] | None = None) -> pd.DataFrame | None:
     """The ad-hoc score of each condition (``ADHOC_COLUMNS``): the team success of its runs (seeds) with every
     held-out partner (``heldout`` cells), as the interquartile mean of those runs × partners scores with a 95 %
     stratified-bootstrap interval over the runs (``sidewalk.stats.interval_estimate``); ``mean`` the plain mean.
-    None when the matrix has no held-out partner (``--partners heldout``)."""
+    With ``best`` (a held-out member's name → its best response's team success), BR-Prox beside it
+    (``br_prox_scores``), over the partners that have a best response. None when the matrix has no held-out partner
+    (``--partners heldout``)."""
     if "heldout" not in frame or not frame["heldout"].astype(bool).any():
         return None
     records = []
     used = _heldout(frame)
+    normalised = br_prox_scores(frame, best or {})
     for label, scores in adhoc_scores(frame).items():
         interval = interval_estimate(scores.to_numpy(dtype=float), "iqm")
         # A matrix made before distinct episodes were recorded has no such column.
         distinct = used.loc[used["row_label"] == label].get("distinct_episodes")
         known = distinct.dropna() if distinct is not None else pd.Series(dtype=float)
-        records.append({
+        record = {
             "condition": label, "runs": len(scores), "partners": scores.shape[1], "iqm": interval.point,
             "low": interval.low, "high": interval.high, "mean": float(np.nanmean(scores.to_numpy(dtype=float))),
             "distinct_low": int(known.min()) if len(known) else None,
             "distinct_high": int(known.max()) if len(known) else None, "note": interval.note,
-        })
+            "br_prox_partners": normalised[label].shape[1],
+        }
+        if normalised[label].shape[1]:
+            prox = interval_estimate(normalised[label].to_numpy(dtype=float), "iqm")
+            record |= {"br_prox_iqm": prox.point, "br_prox_low": prox.low, "br_prox_high": prox.high}
+        records.append(record)
     return pd.DataFrame(records, columns=list(ADHOC_COLUMNS))
+
+
+def br_prox_scores(frame: pd.DataFrame, best: dict[str, float]) -> dict[str, pd.DataFrame]:
+    """Each condition's runs × partners BR-Prox (ZSC-Eval): min(1, its team success / the partner's best response's),
+    so that a partner no one plays well with weighs as much as an easy one. A partner without a best response, or
+    whose best response never succeeds (the ratio is undefined), is left out."""
+    out = {}
+    for label, scores in adhoc_scores(frame).items():
+        members = [partner.removeprefix("heldout:") for partner in scores.columns]
+        denominators = np.array([best.get(member, math.nan) for member in members], dtype=float)
+        denominators[~(denominators > 0)] = math.nan
+        ratio = (scores / denominators).clip(upper=1.0)
+        out[label] = ratio.loc[:, ~np.isnan(denominators)]
+    return out
+
+
+def read_best_responses(folder: Path) -> dict[str, float]:
+    """``folder/best_responses.csv`` as member → its best response's team success; empty where there is none."""
+    path = Path(folder) / BEST_RESPONSES_CSV
+    if not path.exists():
+        return {}
+    table = pd.read_csv(path)
+    missing = {"member", "success"} - set(table.columns)
+    if missing:
+        raise ValueError(f"{path} lacks the column(s) {sorted(missing)}; it needs member and success")
+    return dict(zip(table["member"].astype(str), table["success"].astype(float)))
+
+
+def best_responses_from_runs(paths: Sequence[str | Path]) -> pd.DataFrame:
+    """``best_responses.csv``'s rows from run folders trained against held-out members (``paths``: runs or sweeps):
+    each run's partner matched to the member of its domain's held-out population whose opponent and settings it
+    trained with (``sidewalk.opponents.population``), its final team success (``summary.json``) averaged over the
+    member's runs. A run that matches no held-out member raises ``ValueError`` naming it and the members."""
+    from sidewalk.opponents.population import population
+    from sidewalk.report.runs import find_run_folders, load_run
+
+    found: dict[str, list[tuple[float, str]]] = {}
+    for folder in find_run_folders(paths):
+        run = load_run(folder)
+        member = _heldout_member(run.flat, population(run.flat["env.domain"], "heldout"))
+        if member is None:
+            raise ValueError(f"{folder} trained against opponent={run.flat.get('opponent.name')!r} with settings "
+                             "that match no held-out partner")
+        found.setdefault(member, []).append((float(run.summary["team/success_rate"]), str(folder)))
+    rows = [{"member": member, "success": float(np.mean([s for s, _ in runs])), "runs": len(runs),
+             "run_folders": " ".join(folder for _, folder in runs)} for member, runs in found.items()]
+    return pd.DataFrame(rows, columns=["member", "success", "runs", "run_folders"])
+
+
+def _heldout_member(flat: dict[str, Any], members: dict[str, Any]) -> str | None:
+    """The held-out member whose opponent and settings (its defaults but where it says otherwise) the run's
+    ``opponent.*`` config holds."""
+    from sidewalk.datasets import opponent_config
+
+    for name, member in members.items():
+        if flat.get("opponent.name") != member.opponent:
+            continue
+        if member.opponent == "policy":
+            if Path(str(flat.get("opponent.path", ""))).name == member.params["partner"]:
+                return name
+        elif all(flat.get(f"opponent.params.{key}") == value
+                 for key, value in opponent_config(member.opponent, member.params).items()):
+            return name
+    return None
+
+
+def _br_prox_text(table: pd.DataFrame, best: dict[str, float]) -> str:
+    if not best:
+        return (f"BR-Prox (each partner's score over its best response's, ZSC-Eval) needs `{BEST_RESPONSES_CSV}` "
+                "beside the matrix: no partner here has a best response yet, so only the raw score is given.")
+    return (f"BR-Prox: each partner's team success over that of a best response trained against it "
+            f"(`{BEST_RESPONSES_CSV}`), capped at 1, then the same IQM over runs × partners; partners without a best "
+            "response, or whose best response never succeeds, are left out (the count says how many remain).")
 
 
 def _heldout(frame: pd.DataFrame) -> pd.DataFrame:
@@ -180,9 +263,10 @@ def adhoc_comparisons(frame: pd.DataFrame) -> list[tuple[str, str, Interval]]:
     return pairs
 
 
-def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None) -> list[str]:
-    """The ad-hoc score's table, where the matrix has held-out partners."""
-    table = adhoc_table(frame)
+def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None, best: dict[str, float]) -> list[str]:
+    """The ad-hoc score's table, where the matrix has held-out partners; BR-Prox beside it where ``best`` has the
+    partners' best responses."""
+    table = adhoc_table(frame, best)
     if table is None:
         return []
     partners = ", ".join(f"`{name}`" for name in _ordered(frame.loc[frame["heldout"].astype(bool), "partner_label"]))
@@ -195,13 +279,17 @@ def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None) -> li
             "stratified-bootstrap interval over runs (seeds)."
         ),
         "",
-        "| condition | runs | partners | IQM | 95 % interval | mean | distinct episodes a cell |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        _br_prox_text(table, best),
+        "",
+        "| condition | runs | partners | IQM | 95 % interval | mean | distinct episodes a cell | BR-Prox IQM [95 %] |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in table.itertuples():
         interval = f"[{fmt(r.low)}, {fmt(r.high)}]" if not math.isnan(r.low) else r.note
+        prox = ("–" if not r.br_prox_partners or math.isnan(r.br_prox_iqm) else
+                f"{fmt(r.br_prox_iqm)} [{fmt(r.br_prox_low)}, {fmt(r.br_prox_high)}] ({r.br_prox_partners} partners)")
         md.append(f"| {r.condition} | {r.runs} | {r.partners} | {fmt(r.iqm)} | {interval} | {fmt(r.mean)} | "
-                  f"{distinct_range([r.distinct_low, r.distinct_high])} |")
+                  f"{distinct_range([r.distinct_low, r.distinct_high])} | {prox} |")
         if numbers is not None:
             numbers.add("crossplay", None, f"row: {r.condition}; partners: held-out population", "team_success",
                         "iqm", float(r.iqm), int(r.runs), "ad-hoc score: IQM over runs × held-out partners")
@@ -300,7 +388,8 @@ def crossplay_section(
     ``folder``: where the matrix's ``crossplay.csv`` is (linked for every cell's numbers)."""
     figures = figures if figures is not None else []
     sub = heading.split(" ", 1)[0] + "#"
-    md = [heading, ""] + _how_it_was_made(frame, meta, out, folder) + _adhoc_lines(frame, sub, numbers)
+    best = read_best_responses(folder) if folder is not None else {}
+    md = [heading, ""] + _how_it_was_made(frame, meta, out, folder) + _adhoc_lines(frame, sub, numbers, best)
     md += _conventions_lines(meta, sub)
     for metric, (title, cmap) in HEATMAP_METRICS.items():
         md += _metric_lines(frame, metric, title, cmap, figures_dir, prefix, out, figures, numbers, sub)
@@ -448,7 +537,7 @@ def write_crossplay_report(folder: str | Path) -> Path:
     figures_dir.mkdir(parents=True, exist_ok=True)
     md = ["# Sidewalk cross-play", ""]
     md += crossplay_section(frame, meta, figures_dir, folder, folder=folder)
-    adhoc = adhoc_table(frame)
+    adhoc = adhoc_table(frame, read_best_responses(folder))
     if adhoc is not None:
         atomic_write(folder / ADHOC_CSV, lambda tmp: adhoc.to_csv(tmp, index=False))
     report = folder / REPORT
