@@ -1,7 +1,7 @@
 """The sidewalk salsa: a partner that picks a side to pass on with a cultural bias and re-decides, after a
 reaction time, when the oncoming agent mirrors it (``opponent=salsa``), in both domains.
 
-After "A model of the sidewalk salsa" (Siebinga, Zgonnikov and Abbink, 2024): two pedestrians who meet head on
+After "A model of the sidewalk salsa" (Siebinga, 2024, arXiv:2412.04023): two pedestrians who meet head on
 each pick a side to pass; a shared bias (a culture that keeps right) makes them agree most of the time, and when both
 step to the same side (a mirrored dodge) each re-decides after a reaction delay, which can repeat, back and forth.
 Our model keeps those three mechanisms; its numbers are ours, chosen for our sidewalk's size and step (they are not
