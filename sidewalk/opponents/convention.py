@@ -163,12 +163,25 @@ class ConventionOpponent(Opponent):
         the sidewalk."""
         if self.style != "always_yields":
             return torch.zeros(heading.shape, dtype=torch.bool, device=heading.device)
+        return self._oncoming(along, heading, state, done, present, reach)[1].any(-1)
+
+    def _oncoming(
+        self,
+        along: torch.Tensor,
+        heading: torch.Tensor,
+        state: torch.Tensor,
+        done: torch.Tensor,
+        present: torch.Tensor | None,
+        reach: float,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(ahead, coming), each (B, C, N): how far every agent is ahead of each controlled one along its way
+        (``heading`` ±1, ``along`` (B, N) every agent's coordinate along the sidewalk), and whether it is another
+        present agent ahead within ``reach``."""
         here = self.present(state, None, done, present)  # (B, N)
         ahead = heading.unsqueeze(-1) * (along.unsqueeze(1) - along[:, self._controlled_index].unsqueeze(-1))
         others = torch.ones(len(self.controlled), state.shape[1], dtype=torch.bool, device=state.device)
         others[torch.arange(len(self.controlled)), self._controlled_index] = False
-        coming = (ahead > 0) & (ahead <= reach) & here.unsqueeze(1) & others  # (B, C, N)
-        return coming.any(-1)
+        return ahead, (ahead > 0) & (ahead <= reach) & here.unsqueeze(1) & others
 
     # ---- the continuous world ---------------------------------------------------------------------------------
 

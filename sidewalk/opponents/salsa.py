@@ -100,11 +100,7 @@ class SalsaOpponent(ConventionOpponent):
         index = self._controlled_index
         along, across = state[..., along_axis].float(), state[..., across_axis].float()
         heading = torch.where(goal[:, index, along_axis].float() >= along[:, index], 1.0, -1.0)  # (B, C)
-        ahead = heading.unsqueeze(-1) * (along.unsqueeze(1) - along[:, index].unsqueeze(-1))  # (B, C, N)
-        here = self.present(state, None, done, present).unsqueeze(1)
-        others = torch.ones(len(self.controlled), state.shape[1], dtype=torch.bool, device=state.device)
-        others[torch.arange(len(self.controlled)), index] = False
-        coming = (ahead > 0) & (ahead <= self._notice) & here & others  # (B, C, N)
+        ahead, coming = self._oncoming(along, heading, state, done, present, self._notice)  # (B, C, N)
         nearest = torch.where(coming, ahead, torch.inf).argmin(-1)  # (B, C): the oncoming agent nearest ahead
         noticed = coming.any(-1)
         self.committed |= noticed
