@@ -144,8 +144,8 @@ def adhoc_table(frame: pd.DataFrame, best: dict[str, float] | None = None) -> pd
         return None
     records = []
     used = _heldout(frame)
-    normalised = br_prox_scores(frame, best or {})
     for label, scores in adhoc_scores(frame).items():
+        normalised = _br_prox(scores, best or {})
         interval = interval_estimate(scores.to_numpy(dtype=float), "iqm")
         # A matrix made before distinct episodes were recorded has no such column.
         distinct = used.loc[used["row_label"] == label].get("distinct_episodes")
@@ -155,10 +155,10 @@ def adhoc_table(frame: pd.DataFrame, best: dict[str, float] | None = None) -> pd
             "low": interval.low, "high": interval.high, "mean": float(np.nanmean(scores.to_numpy(dtype=float))),
             "distinct_low": int(known.min()) if len(known) else None,
             "distinct_high": int(known.max()) if len(known) else None, "note": interval.note,
-            "br_prox_partners": normalised[label].shape[1],
+            "br_prox_partners": normalised.shape[1],
         }
-        if normalised[label].shape[1]:
-            prox = interval_estimate(normalised[label].to_numpy(dtype=float), "iqm")
+        if normalised.shape[1]:
+            prox = interval_estimate(normalised.to_numpy(dtype=float), "iqm")
             record |= {"br_prox_iqm": prox.point, "br_prox_low": prox.low, "br_prox_high": prox.high}
         records.append(record)
     return pd.DataFrame(records, columns=list(ADHOC_COLUMNS))
@@ -168,14 +168,15 @@ def br_prox_scores(frame: pd.DataFrame, best: dict[str, float]) -> dict[str, pd.
     """Each condition's runs × partners BR-Prox (ZSC-Eval): min(1, its team success / the partner's best response's),
     so that a partner no one plays well with weighs as much as an easy one. A partner without a best response, or
     whose best response never succeeds (the ratio is undefined), is left out."""
-    out = {}
-    for label, scores in adhoc_scores(frame).items():
-        members = [partner.removeprefix("heldout:") for partner in scores.columns]
-        denominators = np.array([best.get(member, math.nan) for member in members], dtype=float)
-        denominators[~(denominators > 0)] = math.nan
-        ratio = (scores / denominators).clip(upper=1.0)
-        out[label] = ratio.loc[:, ~np.isnan(denominators)]
-    return out
+    return {label: _br_prox(scores, best) for label, scores in adhoc_scores(frame).items()}
+
+
+def _br_prox(scores: pd.DataFrame, best: dict[str, float]) -> pd.DataFrame:
+    """One condition's runs × partners scores over the partners' best responses (``br_prox_scores``)."""
+    members = [partner.removeprefix("heldout:") for partner in scores.columns]
+    denominators = np.array([best.get(member, math.nan) for member in members], dtype=float)
+    denominators[~(denominators > 0)] = math.nan
+    return (scores / denominators).clip(upper=1.0).loc[:, ~np.isnan(denominators)]
 
 
 def read_best_responses(folder: Path) -> dict[str, float]:
