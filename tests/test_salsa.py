@@ -57,7 +57,7 @@ def test_two_grid_salsa_walkers_without_a_shared_bias_dance_back_and_forth():
 
 
 def test_two_continuous_salsa_walkers_without_a_shared_bias_switch_and_often_collide():
-    # A lane change takes longer than the approach leaves: one switch at most, and half the passes fail.
+    # Measured: one switch at most, and about half the passes fail.
     salsa_agent, _, reached = walk(ContinuousSidewalkEnv, {"right_prob": 0.5}, partner_name="salsa", right_prob=0.5)
     assert (salsa_agent.switches >= 1).float().mean() > 0.2
     assert reached.float().mean() < 0.8
