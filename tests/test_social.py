@@ -38,6 +38,16 @@ def test_a_mirrored_dodge_is_one_salsa_step_and_opposite_dodges_are_none():
     assert passing.summary(ego=0)["social/salsa_count"] == 0.0
 
 
+@pytest.mark.parametrize("lag, counted", [(1, 1.0), (2, 0.0)])
+def test_a_sidestep_answered_within_the_window_is_a_mirrored_dodge(lag, counted):
+    # Agent 0 steps UP, then agent 1 steps UP ``lag`` steps later (the window is one step): mirrored only within it.
+    tally = grid_tally([[2, 2], [2, 12]], [[2, 14], [2, 0]])
+    rows = [[1, 2]] * lag + [[1, 1]]
+    for step, (row0, row1) in enumerate(rows, start=1):
+        tally.add_step(torch.tensor([[[row0, 2 + step], [row1, 12 - step]]]), BOTH)
+    assert tally.summary(ego=0)["social/salsa_count"] == counted
+
+
 def test_a_head_on_approach_has_the_time_its_gap_takes_to_close():
     start = unicycle((1.0, 1.0, 0.5, 0.0), (3.0, 1.0, 0.5, math.pi))
     tally = continuous_tally(start, [[4.0, 1.0], [0.0, 1.0]])
