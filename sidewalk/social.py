@@ -34,10 +34,14 @@ LATERAL_STEP_M = 0.05  # a sideways step of a continuous agent (a walking step i
 SALSA_WINDOW_STEPS = 1  # a sidestep answering the other's one step later still mirrors it (0.2 s in the continuous world)
 DEVIATION_M = 0.2  # off its line by this much, an agent has yielded (grid: one row)
 GRID_COLLIDE_CELLS = 0.5
-# Every key SocialTally.summary may write (ego views name the ego and the partner; other views agent 0 and 1).
-SOCIAL_KEYS = tuple(f"social/{name}" for name in (
-    "salsa_count", "min_ttc", "jerk", "intrusion_steps", "intrusion_rate", "ego_yields_first",
-    "partner_yields_first", "agent0_yields_first", "agent1_yields_first", "both_yield_first", "no_yield"))
+_SHARE = "share of episodes"
+# Every key SocialTally.summary may write, with its unit (ego views name the ego and the partner; others agent 0, 1).
+SOCIAL_UNITS = {f"social/{name}": unit for name, unit in (
+    ("salsa_count", "steps an episode"), ("min_ttc", "s (grid: steps), median"), ("jerk", "m/s³ (grid: none)"),
+    ("intrusion_steps", "steps an episode"), ("intrusion_rate", _SHARE), ("ego_yields_first", _SHARE),
+    ("partner_yields_first", _SHARE), ("agent0_yields_first", _SHARE), ("agent1_yields_first", _SHARE),
+    ("both_yield_first", _SHARE), ("no_yield", _SHARE))}
+SOCIAL_KEYS = tuple(SOCIAL_UNITS)
 
 
 @dataclass
