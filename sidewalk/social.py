@@ -3,9 +3,10 @@
 Measured on the two-agent worlds (``sidewalk.evaluate`` adds them to its metrics as ``social/...``; worlds of other
 sizes have none), from the agents' states step by step, while both are present and neither is done:
 
-- ``salsa_count``: mirrored dodges, steps in which both agents, walking toward each other and not yet past, step
-  sideways toward the same side of the sidewalk (grid: both change row the same way; continuous: both move at least
-  ``LATERAL_STEP_M`` across the same way), so each stays in the other's way;
+- ``salsa_count``: mirrored dodges, steps in which one agent steps sideways toward a side of the sidewalk and the
+  other stepped toward the same side in this step or in the ``SALSA_WINDOW_STEPS`` before it, the two walking toward
+  each other and not yet past (grid: a change of row; continuous: at least ``LATERAL_STEP_M`` across in a step), so
+  each stays in the other's way; a step counts once however many of its sidesteps match;
 - ``min_ttc``: the least time to collision over the episode, the two moving on at their current velocities until
   their bodies touch (continuous: seconds, discs of the agent radius; grid: steps until their centres are half a cell
   apart, velocities from the last step's moves); the median over episodes (a pass that never closes in is inf);
@@ -30,12 +31,17 @@ import torch
 PERSONAL_SPACE_M = 0.2  # beyond the two bodies: CrowdNav's discomfort distance (Chen et al. 2019)
 GRID_PERSONAL_SPACE_CELLS = 1.5  # centres within this: the same or a neighbouring cell, diagonals included
 LATERAL_STEP_M = 0.05  # a sideways step of a continuous agent (a walking step is 0.1 m at 0.5 m/s)
+SALSA_WINDOW_STEPS = 1  # a sidestep answering the other's one step later still mirrors it (0.2 s in the continuous world)
 DEVIATION_M = 0.2  # off its line by this much, an agent has yielded (grid: one row)
 GRID_COLLIDE_CELLS = 0.5
-# Every key SocialTally.summary may write (ego views name the ego and the partner; other views agent 0 and 1).
-SOCIAL_KEYS = tuple(f"social/{name}" for name in (
-    "salsa_count", "min_ttc", "jerk", "intrusion_steps", "intrusion_rate", "ego_yields_first",
-    "partner_yields_first", "agent0_yields_first", "agent1_yields_first", "both_yield_first", "no_yield"))
+_SHARE = "share of episodes"
+# Every key SocialTally.summary may write, with its unit (ego views name the ego and the partner; others agent 0, 1).
+SOCIAL_UNITS = {f"social/{name}": unit for name, unit in (
+    ("salsa_count", "steps an episode"), ("min_ttc", "s (grid: steps), median"), ("jerk", "m/s³ (grid: none)"),
+    ("intrusion_steps", "steps an episode"), ("intrusion_rate", _SHARE), ("ego_yields_first", _SHARE),
+    ("partner_yields_first", _SHARE), ("agent0_yields_first", _SHARE), ("agent1_yields_first", _SHARE),
+    ("both_yield_first", _SHARE), ("no_yield", _SHARE))}
+SOCIAL_KEYS = tuple(SOCIAL_UNITS)
 
 
 @dataclass
@@ -57,6 +63,9 @@ class SocialTally:
     jerk_squares: torch.Tensor  # (B, 2)
     jerk_steps: torch.Tensor  # (B, 2)
     first_yield: torch.Tensor  # (B,) long: -1 none yet, 0 or 1 the agent, 2 both in one step
+    last_side: torch.Tensor  # (B, 2) the side of each agent's last sidestep (±1, 0 none yet)
+    since_side: torch.Tensor  # (B, 2) steps since that sidestep
+    window: int = SALSA_WINDOW_STEPS
 
     @classmethod
     def begin(cls, state: torch.Tensor, goal: torch.Tensor, grid: bool, dt_s: float, radius_m: float) -> SocialTally:
@@ -75,6 +84,7 @@ class SocialTally:
             salsa=zeros(), intrusions=zeros(), min_ttc=torch.full((n_worlds,), math.inf, device=device),
             jerk_squares=zeros(2), jerk_steps=zeros(2),
             first_yield=torch.full((n_worlds,), -1, dtype=torch.long, device=device),
+            last_side=zeros(2), since_side=zeros(2),
         )
 
     def _axes(self) -> tuple[int, int]:
@@ -88,10 +98,7 @@ class SocialTally:
         along, across = self._axes()
         heading = torch.sign(self.goal[..., along] - self.start[..., along])  # (B, 2)
         to_pass = (heading[:, 0] * heading[:, 1] < 0) & (heading[:, 0] * (now[:, 1, along] - now[:, 0, along]) > 0)
-        sideways = now[..., across] - self.previous[..., across]
-        threshold = 0.5 if self.grid else LATERAL_STEP_M
-        mirrored = (sideways.abs() >= threshold).all(-1) & (torch.sign(sideways[:, 0]) == torch.sign(sideways[:, 1]))
-        self.salsa += (mirrored & to_pass & both).float()
+        self.salsa += (self._mirrored(now[..., across] - self.previous[..., across]) & to_pass & both).float()
         gap = (now[:, 1] - now[:, 0]).norm(dim=-1)
         self.intrusions += ((gap < self.personal_space) & both).float()
         # Velocities are cells a step in the grid, m/s in the continuous world: times in steps, in seconds.
@@ -100,6 +107,17 @@ class SocialTally:
         self._add_jerk(velocity, active)
         self._add_yield(now, to_pass & both)
         self.previous = now
+
+    def _mirrored(self, sideways: torch.Tensor) -> torch.Tensor:
+        """(B,) whether a sidestep of this step matches the other's side now or within the window before."""
+        side = torch.sign(sideways) * (sideways.abs() >= (0.5 if self.grid else LATERAL_STEP_M))  # (B, 2) ±1 or 0
+        self.since_side += 1
+        recent = torch.where(self.since_side <= self.window, self.last_side, torch.zeros_like(side))
+        now_or_recent = torch.where(side != 0, side, recent)  # this step's sidestep, else a recent one
+        matched = (side != 0) & (side == now_or_recent.flip(-1))  # (B, 2): it matches the other's side
+        self.last_side = torch.where(side != 0, side, self.last_side)
+        self.since_side = self.since_side.masked_fill(side != 0, 0)
+        return matched.any(-1)
 
     def _add_jerk(self, velocity: torch.Tensor, active: torch.Tensor) -> None:
         if self.grid:

@@ -1,12 +1,15 @@
 """The social measures of a pass (sidewalk.social) on hand-built steps with known answers, and in real evaluations."""
 
+import json
 import math
 
 import pytest
 import torch
+from test_report_safety import SETTINGS, base_config, sweep, write_run
 
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
+from sidewalk.report.document import write_report
 from sidewalk.social import SocialTally
 from sidewalk.views import view_for_opponent
 
@@ -36,6 +39,16 @@ def test_a_mirrored_dodge_is_one_salsa_step_and_opposite_dodges_are_none():
     passing = grid_tally(start, goals)
     passing.add_step(torch.tensor([[[1, 3], [3, 8]]]), BOTH)  # UP and DOWN: out of each other's way
     assert passing.summary(ego=0)["social/salsa_count"] == 0.0
+
+
+@pytest.mark.parametrize("lag, counted", [(1, 1.0), (2, 0.0)])
+def test_a_sidestep_answered_within_the_window_is_a_mirrored_dodge(lag, counted):
+    # Agent 0 steps UP, then agent 1 steps UP ``lag`` steps later (the window is one step): mirrored only within it.
+    tally = grid_tally([[2, 2], [2, 12]], [[2, 14], [2, 0]])
+    rows = [[1, 2]] * lag + [[1, 1]]
+    for step, (row0, row1) in enumerate(rows, start=1):
+        tally.add_step(torch.tensor([[[row0, 2 + step], [row1, 12 - step]]]), BOTH)
+    assert tally.summary(ego=0)["social/salsa_count"] == counted
 
 
 def test_a_head_on_approach_has_the_time_its_gap_takes_to_close():
@@ -97,3 +110,20 @@ def test_worlds_of_three_agents_have_no_social_measures():
     core = DiscreteSidewalkEnv(8, seed=0, layout="door", n_agents=3)
     metrics = evaluate(view_for_opponent(core, "dijkstra", 0), None, seed=0)
     assert not any(key.startswith("social/") for key in metrics)
+
+
+def test_the_report_gives_each_condition_its_social_measures_with_intervals_and_distinct_episodes(tmp_path):
+    root = sweep(tmp_path / "runs")
+    for seed, (salsa_count, distinct) in enumerate([(1.0, 40), (3.0, 42)]):
+        folder = root / f"seed={seed}"
+        write_run(folder, base_config(seed), [1, 0], 0.5, 0.0, None)
+        summary = json.loads((folder / "summary.json").read_text())
+        summary |= {"social/salsa_count": salsa_count, "social/intrusion_rate": 0.25, "distinct_episodes": distinct}
+        (folder / "summary.json").write_text(json.dumps(summary))
+    report = write_report([root], tmp_path / "out", SETTINGS).report_md.read_text()
+    lines = report.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("| id | condition | measure |"))
+    rows = {line.split("|")[3].strip(): [cell.strip() for cell in line.split("|")] for line in lines[header + 2:header + 4]}
+    assert set(rows) == {"salsa_count", "intrusion_rate"}
+    assert rows["salsa_count"][6] == "40–42"  # the distinct episodes behind each seed's value
+    assert rows["salsa_count"][7] == "2.000 ± 1.000" and rows["intrusion_rate"][8].startswith("0.250 [0.250, 0.250]")

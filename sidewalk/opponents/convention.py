@@ -59,6 +59,7 @@ class ConventionOpponent(Opponent):
     listed = False  # not one of the paper's opponents: chosen by name only
     # Each replica's own instance: its pauses draw from that replica's generator and its counts are its worlds'.
     per_replica = True
+    lookahead_m = LOOKAHEAD_M  # continuous: how far ahead on its lane it steers (nearer: a sharper step aside)
 
     def __init__(
         self,
@@ -200,7 +201,7 @@ class ConventionOpponent(Opponent):
         centre = layout.width_m / 2
         lane_y = centre + heading * self._lane_side() * self._lane_m
         merging = (own_goal[..., 0] - x).abs() <= MERGE_M
-        way_x = torch.where(merging, own_goal[..., 0], x + heading * LOOKAHEAD_M)
+        way_x = torch.where(merging, own_goal[..., 0], x + heading * self.lookahead_m)
         way_y = torch.where(merging, own_goal[..., 1], lane_y)
         yielding = self._yielding(state[..., 0], heading, state, done, present, self._yield_m)
         aside_y = centre - heading * self._aside_m  # against the wall on its right

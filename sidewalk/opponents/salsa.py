@@ -1,11 +1,11 @@
 """The sidewalk salsa: a partner that picks a side to pass on with a cultural bias and re-decides, after a
 reaction time, when the oncoming agent mirrors it (``opponent=salsa``), in both domains.
 
-After "A model of the sidewalk salsa" (Siebinga, 2024, arXiv:2412.04023): two pedestrians who meet head on
-each pick a side to pass; a shared bias (a culture that keeps right) makes them agree most of the time, and when both
-step to the same side (a mirrored dodge) each re-decides after a reaction delay, which can repeat, back and forth.
-Our model keeps those three mechanisms; its numbers are ours, chosen for our sidewalk's size and step (they are not
-fitted to the paper's data):
+After "A Model of the Sidewalk Salsa" (O. Siebinga, arXiv:2412.04023, 2024; IEEE SMC 2025): two pedestrians who
+meet head on each plan a path that keeps their perceived risk of meeting the other below a threshold; a cultural
+bias in the belief about which side the other passes on makes them agree more often, and when both deviate to the
+same side each replans, which can repeat, back and forth. The paper's pedestrians optimise a 7 s plan against a
+probabilistic belief; ours keep three of its mechanisms as rules, computed for every world at once:
 
 - it walks the centre line until another present agent is ahead of it, coming, within ``notice_fraction`` of the
   sidewalk's length; then it steps onto a lane ``lane_fraction`` of the free half-width to its right (probability
@@ -13,6 +13,18 @@ fitted to the paper's data):
 - while that agent is ahead and on the same side of the centre line as its lane (the mirrored position), it counts
   the steps; after ``reaction_steps`` of them it switches to the other side with probability ``switch_prob``, and
   counts again. ``switches`` (B, C) counts each world's switches since its reset: the salsa's steps.
+
+Where the numbers come from. The 7 s plan is in the paper's text; the 1.2 : 0.8 weights and the 0.25 s plan step are
+our reading of the simulations published with its code (sidewalk 2.5 m × 15 m, 1.3 m/s, step 50 ms), not re-checked:
+
+| parameter | default | source |
+| --- | --- | --- |
+| ``right_prob`` | 0.6 | the paper: its biased belief weighs the two passing sides 1.2 : 0.8, a 60 : 40 split; it biases a belief, we take the split as the share of worlds in which it first picks its right |
+| ``notice_fraction`` | 1.0 | the paper: its pedestrians plan 7 s ahead, more than the 5.8 s two of them need to close a 15 m sidewalk at 1.3 m/s each, so each sees the other from the start: here the whole sidewalk (4 m, 14 cells) |
+| ``reaction_steps`` | 1 | the paper replans whenever its risk passes the threshold, on plans of 0.25 s steps (4 Hz); 0.25 s is 1 step of our continuous world's 0.2 s (the grid: 1 step). Its perception lag (a first-order filter of the other's speed and heading, rate 0.25 /s) has no counterpart here |
+| ``switch_prob`` | 0.5 | ours: the paper has no such number (its switches come from the risk); a re-decision with no side preferred |
+| ``lane_fraction`` | 0.6 | ours (the conventions' lane: 0.72 m off the centre line; 2 of 3 grid cells): the paper keeps a 0.3 m comfortable range around bodies 0.25 m apart at contact, ours touch at 0.6 m |
+| ``lookahead_m`` | 0.4 m | ours: it steers for a point this far ahead on its lane, a sharper step aside than the conventions' 0.8 m, so it clears a walker on the centre line of our 4 m sidewalk |
 
 It walks, merges onto its goal and waits as the conventions do (``sidewalk.opponents.convention``).
 """
@@ -27,10 +39,10 @@ from sidewalk._checks import check_int, check_range
 from sidewalk.envs.base import SidewalkEnvBase
 from sidewalk.opponents.convention import LANE_FRACTION, ConventionOpponent
 
-RIGHT_PROB = 0.8  # the cultural bias: the share of worlds in which it passes on its right
-NOTICE_FRACTION = 0.6  # it commits to a side once the oncoming agent is within this share of the sidewalk's length
-REACTION_STEPS = 2  # steps of mirrored position before it re-decides (0.4 s at the continuous world's 0.2 s step)
-SWITCH_PROB = 0.5  # the chance that a re-decision switches sides
+RIGHT_PROB = 0.6  # the cultural bias, the share of worlds in which it first picks its right (the paper's 1.2 : 0.8)
+NOTICE_FRACTION = 1.0  # it picks its side once the oncoming agent is within this share of the sidewalk's length
+REACTION_STEPS = 1  # steps of mirrored position before it re-decides (the paper's 0.25 s plan step: 1 step of 0.2 s)
+SWITCH_PROB = 0.5  # the chance that a re-decision switches sides (ours)
 
 
 class SalsaOpponent(ConventionOpponent):
@@ -38,6 +50,7 @@ class SalsaOpponent(ConventionOpponent):
     ``notice_fraction``, ``reaction_steps``, ``switch_prob`` and ``lane_fraction`` as described there."""
 
     name = "salsa"
+    lookahead_m = 0.4  # continuous: a sharper step aside than the conventions' (see the module docstring)
 
     def __init__(
         self,

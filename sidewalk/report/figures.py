@@ -42,15 +42,21 @@ from sidewalk.report.tables import (
     records_safety,
     safety_finals,
     safety_table,
+    social_finals,
+    social_table,
 )
 from sidewalk.run_folder import SUMMARY, UnsafeFile
-from sidewalk.social import SOCIAL_KEYS
 
 log = logging.getLogger(__name__)
 
 
 CURVE_METRICS = {"success_rate": "success rate", "collision_rate": "collision rate"}
 SCENARIO_METRICS = ("makespan", "deadlock_rate")  # reported for runs in a scenario other than the sidewalk
+SOCIAL_NOTE = (
+    "How the passes felt: the social measures of the final evaluation (`sidewalk.social`, defined in the "
+    "evaluation guide's \"Social measures of a pass\"), each seed's value over its episodes; mean ± SE and the "
+    "IQM's interval over seeds, and how many distinct episodes each seed's value rests on."
+)
 SAFETY_NOTE = (
     "Safety, as Safety Gym reports it (Ray, Achiam & Amodei 2019): the learner's final return and final episode "
     "cost (the last evaluation) and its cost rate over all of training (the cost it paid per frame collected); "
@@ -541,6 +547,7 @@ def _family_finals(family: str, members: Sequence[Condition], settings: Settings
     family_safety = any(records_safety(condition) for condition in members)
     safety_rows = []
     final_rows = []
+    social_rows = []
     for condition in members:
         agents = condition.agents()
         for metric in CURVE_METRICS:
@@ -553,11 +560,11 @@ def _family_finals(family: str, members: Sequence[Condition], settings: Settings
         if condition.flat.get("env.layout", "sidewalk") != "sidewalk":
             # The scenarios' coordination metrics (sidewalk.evaluate): whole-team keys of summary.json.
             team += [final_of(condition, "team", key, key, settings) for key in SCENARIO_METRICS]
-        # The social measures of the pass (sidewalk.social), where the runs' evaluations recorded them.
-        social = [key for key in SOCIAL_KEYS if any(key in run.summary for run in condition.runs)]
-        team += [final_of(condition, "team", key, key, settings) for key in social]
-        for final in team:
-            final_rows.append((condition, "team", final))
+        social = social_finals(condition, settings)
+        if social:
+            social_rows.append((condition, social))
+        final_rows += [(condition, "team", final) for final in team]
+        for final in team + social:
             numbers.add_final(f"family:{family}", condition, final)
         if family_safety:
             by_metric = safety_finals(condition, settings)
@@ -571,6 +578,8 @@ def _family_finals(family: str, members: Sequence[Condition], settings: Settings
     md = ["Final values (`summary.json`):", ""] + final_table(final_rows, settings.confidence) + [""]
     if safety_rows:
         md += [SAFETY_NOTE, ""] + safety_table(safety_rows) + [""]
+    if social_rows:
+        md += [SOCIAL_NOTE, ""] + social_table(social_rows, settings.confidence) + [""]
     return md
 
 

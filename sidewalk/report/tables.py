@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from sidewalk.report.conditions import Condition
+from sidewalk.social import SOCIAL_UNITS
 from sidewalk.stats import Interval, interval_estimate, mean_se
 
 X_AXES = {"frames": "frames", "iterations": "iteration"}  # option name -> metrics.csv column
@@ -362,4 +363,28 @@ def final_table(rows: Sequence[tuple[Condition, str, Final]], confidence: float)
             f"| {condition.ident} | {condition.label} | {agent_name} | {final.metric} | {n} | "
             f"{mean_se_text(final)} | {iqm_text(final)} |"
         )
+    return lines
+
+
+def social_finals(condition: Condition, settings: Settings) -> list[Final]:
+    """The social measures of the pass (``sidewalk.social``) its runs' final evaluations recorded, across seeds."""
+    keys = [key for key in SOCIAL_UNITS if any(key in run.summary for run in condition.runs)]
+    return [final_of(condition, "team", key, key, settings) for key in keys]
+
+
+def social_table(rows: Sequence[tuple[Condition, list[Final]]], confidence: float) -> list[str]:
+    """Markdown rows, one per condition and social measure: its unit, seeds, the distinct episodes each seed's final
+    evaluation played, mean ± SE and IQM [CI] over seeds (``sidewalk.social`` defines the measures)."""
+    lines = [
+        f"| id | condition | measure | unit | seeds | distinct episodes a seed | mean ± SE | IQM [{confidence:.0%} CI] |",
+        "| --- | --- | --- | --- | ---: | ---: | --- | --- |",
+    ]
+    for condition, finals_of_condition in rows:
+        distinct = distinct_range(run.summary.get("distinct_episodes") for run in condition.runs)
+        for final in finals_of_condition:
+            n = int(np.sum(~np.isnan(final.values)))
+            lines.append(
+                f"| {condition.ident} | {condition.label} | {final.metric.removeprefix('social/')} | "
+                f"{SOCIAL_UNITS[final.metric]} | {n} | {distinct} | {mean_se_text(final)} | {iqm_text(final)} |"
+            )
     return lines
