@@ -190,44 +190,6 @@ def read_best_responses(folder: Path) -> dict[str, float]:
     return dict(zip(table["member"].astype(str), table["success"].astype(float)))
 
 
-def best_responses_from_runs(paths: Sequence[str | Path]) -> pd.DataFrame:
-    """``best_responses.csv``'s rows from run folders trained against held-out members (``paths``: runs or sweeps):
-    each run's partner matched to the member of its domain's held-out population whose opponent and settings it
-    trained with (``sidewalk.opponents.population``), its final team success (``summary.json``) averaged over the
-    member's runs. A run that matches no held-out member raises ``ValueError`` naming it and the members."""
-    from sidewalk.opponents.population import population
-    from sidewalk.report.runs import find_run_folders, load_run
-
-    found: dict[str, list[tuple[float, str]]] = {}
-    for folder in find_run_folders(paths):
-        run = load_run(folder)
-        member = _heldout_member(run.flat, population(run.flat["env.domain"], "heldout"))
-        if member is None:
-            raise ValueError(f"{folder} trained against opponent={run.flat.get('opponent.name')!r} with settings "
-                             "that match no held-out partner")
-        found.setdefault(member, []).append((float(run.summary["team/success_rate"]), str(folder)))
-    rows = [{"member": member, "success": float(np.mean([s for s, _ in runs])), "runs": len(runs),
-             "run_folders": " ".join(folder for _, folder in runs)} for member, runs in found.items()]
-    return pd.DataFrame(rows, columns=["member", "success", "runs", "run_folders"])
-
-
-def _heldout_member(flat: dict[str, Any], members: dict[str, Any]) -> str | None:
-    """The held-out member whose opponent and settings (its defaults but where it says otherwise) the run's
-    ``opponent.*`` config holds."""
-    from sidewalk.datasets import opponent_config
-
-    for name, member in members.items():
-        if flat.get("opponent.name") != member.opponent:
-            continue
-        if member.opponent == "policy":
-            if Path(str(flat.get("opponent.path", ""))).name == member.params["partner"]:
-                return name
-        elif all(flat.get(f"opponent.params.{key}") == value
-                 for key, value in opponent_config(member.opponent, member.params).items()):
-            return name
-    return None
-
-
 def _br_prox_text(table: pd.DataFrame, best: dict[str, float]) -> str:
     if not best:
         return (f"BR-Prox (each partner's score over its best response's, ZSC-Eval) needs `{BEST_RESPONSES_CSV}` "
