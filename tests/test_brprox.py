@@ -24,7 +24,8 @@ TINY = ["num_envs=4", "iterations=2", "eval_every=2", "eval_episodes=8", "logger
 
 def matrix(scores: dict[str, dict[str, float]]) -> pd.DataFrame:
     """A cross-play frame of held-out cells: run → partner → team success, one condition."""
-    rows = [{"row_label": "learner", "row_run": run, "partner": f"heldout:{partner}", "team_success": value,
+    rows = [{"row_label": "learner", "row_run": run, "partner": f"heldout:{partner}", "partner_label": partner,
+             "team_success": value,
              "heldout": True, "skipped": "", "distinct_episodes": 256}
             for run, partners in scores.items() for partner, value in partners.items()]
     return pd.DataFrame(rows)
@@ -126,3 +127,12 @@ def test_the_command_refuses_best_responses_without_a_matrix(runner, capsys):
     with pytest.raises(SystemExit) as exit_:
         runner("crossplay").main(["--best-responses", "x", "--out", "y", "somerun"])
     assert exit_.value.code == 2 and "--best-responses goes with --redraw" in capsys.readouterr().err
+
+
+def test_the_report_names_partners_without_a_best_response_and_those_whose_best_response_never_succeeds():
+    from sidewalk.report.crossplay import _adhoc_lines
+
+    text = "\n".join(_adhoc_lines(FRAME, "###", None, {"easy": 0.8, "hard": 0.0}))
+    assert "No best response cached for `unmatched`" in text
+    assert "best response to `hard` never succeeds" in text
+    assert "(1 partners)" in text  # only `easy` is left to BR-Prox

@@ -190,13 +190,20 @@ def read_best_responses(folder: Path) -> dict[str, float]:
     return dict(zip(table["member"].astype(str), table["success"].astype(float)))
 
 
-def _br_prox_text(table: pd.DataFrame, best: dict[str, float]) -> str:
+def _br_prox_text(members: Sequence[str], best: dict[str, float]) -> str:
+    """What BR-Prox rests on: which held-out ``members`` have a best response (``best``), which are left out, why."""
     if not best:
         return (f"BR-Prox (each partner's score over its best response's, ZSC-Eval) needs `{BEST_RESPONSES_CSV}` "
                 "beside the matrix: no partner here has a best response yet, so only the raw score is given.")
-    return (f"BR-Prox: each partner's team success over that of a best response trained against it "
-            f"(`{BEST_RESPONSES_CSV}`), capped at 1, then the same IQM over runs × partners; partners without a best "
-            "response, or whose best response never succeeds, are left out (the count says how many remain).")
+    missing = [f"`{name}`" for name in members if name not in best]
+    never = [f"`{name}`" for name in members if name in best and not best[name] > 0]
+    text = (f"BR-Prox: each partner's team success over that of a best response trained against it "
+            f"(`{BEST_RESPONSES_CSV}`), capped at 1, then the same IQM over runs × partners.")
+    if missing:
+        text += f" No best response cached for {', '.join(missing)}: left out of BR-Prox, kept in the raw score."
+    if never:
+        text += f" The best response to {', '.join(never)} never succeeds (the ratio is undefined): left out too."
+    return text
 
 
 def _heldout(frame: pd.DataFrame) -> pd.DataFrame:
@@ -241,7 +248,7 @@ def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None, best:
             "stratified-bootstrap interval over runs (seeds)."
         ),
         "",
-        _br_prox_text(table, best),
+        _br_prox_text([name.removeprefix("heldout:") for name in _ordered(_heldout(frame)["partner"])], best),
         "",
         "| condition | runs | partners | IQM | 95 % interval | mean | distinct episodes a cell | BR-Prox IQM [95 %] |",
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
