@@ -130,6 +130,7 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
     Params = DiscreteParams
     ACTION_LABELS = ACTIONS
     shaping_weight_name = None  # two shaping terms, weighed in _advance: c_center and c_progress
+    PARTNER_OBSERVATIONS = ("vector",)  # a vector is cheap to compute from the state in any world; an image is not
 
     room_sides = ("width_cells", "length_cells")
     STATE_WIDTH = 5  # cell row, col, goal row, col (scaled to [0, 1] by the grid's extent), present
@@ -347,6 +348,12 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
             "state": torch.stack([row, col], dim=-1),
             "goal": torch.stack([goal_row, goal_col], dim=-1),
         }
+
+    def observe_as(self, kind: str) -> torch.Tensor:
+        """Every agent's observation of the worlds' current state as an env of ``observation=kind`` gives it
+        (``PARTNER_OBSERVATIONS``: ``"vector"``, (num_envs, N, fields·N)), whatever this env's own observation."""
+        check_choice("partner observation", kind, self.PARTNER_OBSERVATIONS)
+        return self._vector(self._row, self._col, self._goal_row, self._goal_col, self._present, self._active)
 
     def _image(
         self, row: torch.Tensor, col: torch.Tensor, present: torch.Tensor, worlds: torch.Tensor | None
