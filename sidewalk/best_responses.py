@@ -119,25 +119,29 @@ def write_cache(out: str | Path, rows: Sequence[dict[str, Any]]) -> Path:
 def train_one(
     domain: str, name: str, runs_dir: Path, seeds: int, iterations: int | None, extra: Sequence[str] = ()
 ) -> tuple[list[Path], str]:
-    """Train the best response to ``name`` in ``runs_dir/<domain>/<name>`` unless its seeds finished there; return
-    its seeds' run folders and the command that trains it."""
+    """Train the best response to ``name`` in ``runs_dir/<domain>/<name>``, continuing a run stopped there and
+    skipping one that finished; return its seeds' run folders and the command that trains it."""
+    import dataclasses
+
     from omegaconf import OmegaConf
 
     from sidewalk.compose import compose
     from sidewalk.config import validate
     from sidewalk.experiment import Trial
     from sidewalk.opponents.policy import check_partner_of
-    from sidewalk.run_folder import SUMMARY
-    from sidewalk.trial_state import seed_dirs
+    from sidewalk.run_folder import CONFIG
+    from sidewalk.trial_state import check_folders, seed_dirs, state_dir
 
     run_dir = Path(runs_dir) / domain / name
     overrides = best_response_overrides(domain, name, seeds, iterations, extra)
     cfg = compose(overrides)
-    experiment = validate(cfg)
+    experiment, config = validate(cfg), OmegaConf.to_container(cfg, resolve=True)
     check_partner_of(experiment)
+    if (state_dir(run_dir, experiment) / CONFIG).exists():  # an earlier job started it: continue, as resume=true does
+        experiment, config = dataclasses.replace(experiment, resume=True), {**config, "resume": True}
+    if check_folders(run_dir, experiment, config) != "finished":
+        Trial(experiment, run_dir, config).run(progress=False)
     folders = seed_dirs(run_dir, experiment)
-    if not all((folder / SUMMARY).exists() for folder in folders):
-        Trial(experiment, run_dir, OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
     command = shlex.join(["python", "runners/main.py", *overrides, f"hydra.run.dir={run_dir}"])
     return folders, command
 

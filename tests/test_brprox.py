@@ -111,6 +111,13 @@ def test_a_tiny_best_response_is_trained_evaluated_cached_and_not_trained_again(
     train_best_responses("discrete", tmp_path / "matrix", tmp_path / "runs", ["keep_left"], iterations=2,
                          episodes=8, show_progress=False, extra=tiny)
     assert read_best_responses(tmp_path / "matrix") == {"keep_left": 0.123}
+    policy = tmp_path / "runs" / "discrete" / "keep_left" / "policy.pt"
+    trained_at = policy.stat().st_mtime_ns
+    (tmp_path / "matrix" / BEST_RESPONSES_CSV).unlink()  # a finished run is evaluated again, not trained again
+    train_best_responses("discrete", tmp_path / "matrix", tmp_path / "runs", ["keep_left"], iterations=2,
+                         episodes=8, show_progress=False, extra=tiny)
+    assert read_best_responses(tmp_path / "matrix") == {"keep_left": row["success"]}
+    assert policy.stat().st_mtime_ns == trained_at
 
 
 def test_the_command_refuses_an_unknown_member_before_training(runner, tmp_path, capsys):
