@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from sidewalk._checks import check_choice, check_int
-from sidewalk.crossplay import Column, evaluate_cell, evaluation_world, load_player
+from sidewalk.crossplay import evaluate_cell, evaluation_world, heldout_column, load_player
 from sidewalk.opponents.population import Member, population
 from sidewalk.report.crossplay import BEST_RESPONSES_CSV
 from sidewalk.stats import interval_estimate
@@ -66,14 +66,6 @@ def check_members(domain: str, names: Sequence[str] | None) -> dict[str, Member]
     for name in names or []:
         check_choice("held-out member", name, heldout)
     return {name: heldout[name] for name in (names or heldout)}
-
-
-def heldout_column(domain: str, name: str, member: Member) -> Column:
-    """Member ``name`` as the matrix's column ``heldout:<name>`` (``sidewalk.crossplay.heldout_columns``'s)."""
-    kwargs = member.kwargs(domain)
-    if member.opponent == "policy":
-        return Column(f"heldout:{name}", load_player(kwargs["path"]), heldout=True)
-    return Column(f"heldout:{name}", opponent=member.opponent, params=kwargs, heldout=True)
 
 
 def evaluate_best_response(

@@ -228,17 +228,20 @@ def heldout_columns(domain: str, known: dict[Path, Player]) -> list[Column]:
     ``heldout:<member>``; a shipped learned member already in ``known`` shares its ``Player``."""
     from sidewalk.opponents.population import population
 
-    columns = []
-    for name, member in population(domain, "heldout").items():
-        kwargs = member.kwargs(domain)
-        if member.opponent == "policy":
-            path = Path(kwargs["path"])
-            player = known.get(path.resolve()) or load_player(path)
-            known[path.resolve()] = player
-            columns.append(Column(f"{HELDOUT}:{name}", player, heldout=True))
-        else:
-            columns.append(Column(f"{HELDOUT}:{name}", opponent=member.opponent, params=kwargs, heldout=True))
-    return columns
+    return [heldout_column(domain, name, member, known) for name, member in population(domain, "heldout").items()]
+
+
+def heldout_column(domain: str, name: str, member: Any, known: dict[Path, Player] | None = None) -> Column:
+    """Held-out ``member`` (a ``population.Member``) named ``name`` as the column ``heldout:<name>``; a learned one's
+    ``Player`` taken from, or added to, ``known``."""
+    kwargs = member.kwargs(domain)
+    if member.opponent != "policy":
+        return Column(f"{HELDOUT}:{name}", opponent=member.opponent, params=kwargs, heldout=True)
+    known = {} if known is None else known
+    path = Path(kwargs["path"])
+    player = known.get(path.resolve()) or load_player(path)
+    known[path.resolve()] = player
+    return Column(f"{HELDOUT}:{name}", player, heldout=True)
 
 
 def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], domain: str) -> list[Column]:
