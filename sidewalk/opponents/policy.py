@@ -272,6 +272,8 @@ class PolicyOpponent(Opponent):
         # A partner trained on another observation kind (a grid vector in an image world) sees its own, from the env.
         own = getattr(self.partner.env_params, "observation", None)
         self._own_observation = own if own != getattr(env.params, "observation", None) else None
+        if self._own_observation is not None:
+            self.in_keys = list(type(env).PARTNER_OBSERVATION_KEYS)
 
     @staticmethod
     def _rebuild(partner: Partner, env: SidewalkEnvBase, sample: bool):
@@ -296,7 +298,7 @@ class PolicyOpponent(Opponent):
         if self._own_observation is None:
             observation = tensordict.get(OBSERVATION_KEY)  # (B, N, ...)
         else:
-            observation = self.env.observe_as(self._own_observation)  # the state the last output shows
+            observation = self.env.observe_as(self._own_observation, tensordict)
         batch = observation.shape[0]
         partner = self.partner
         if partner.opponent == "self":
