@@ -41,7 +41,10 @@ def member_overrides(domain: str, member: Member) -> list[str]:
     """The config overrides that make ``member`` the opponent: its registered name and settings, a shipped learned
     member as ``opponent=policy opponent.path=<its folder>``."""
     if member.opponent == "policy":
-        return ["opponent=policy", f"opponent.path={member.kwargs(domain)['path']}"]
+        path = Path(member.kwargs(domain)["path"])
+        if path.is_relative_to(Path.cwd()):  # a clone's command reads the same on every machine
+            path = path.relative_to(Path.cwd())
+        return ["opponent=policy", f"opponent.path={path}"]
     return [f"opponent={member.opponent}"] + [f"opponent.params.{key}={value}" for key, value in member.params.items()]
 
 

@@ -1,5 +1,7 @@
 """BR-Prox (ZSC-Eval): the ad-hoc score with each held-out partner's score over its best response's, capped at 1."""
 
+from pathlib import Path
+
 import pandas as pd
 import pytest
 from omegaconf import OmegaConf
@@ -82,6 +84,8 @@ def test_a_member_is_named_by_its_opponent_and_settings():
     members = population("discrete", "heldout")
     assert member_overrides("discrete", members["keep_left"]) == ["opponent=convention", "opponent.params.style=keep_left"]
     assert member_overrides("discrete", members["dijkstra"]) == ["opponent=dijkstra", "opponent.params.tie_break=progress"]
+    shipped = member_overrides("discrete", members["vdn_seed0"])
+    assert shipped[0] == "opponent=policy" and Path(shipped[1].split("=", 1)[1]).name == "vdn_seed0"
 
 
 def test_the_cache_reads_back_and_a_new_row_replaces_the_members_old_one(tmp_path):
