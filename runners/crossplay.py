@@ -3,6 +3,8 @@
     python runners/crossplay.py results/sweeps/dqn_random results/sweeps/iql_self --out results/crossplay
     python runners/crossplay.py RUN_DIR... --partners random,dijkstra,OTHER_RUN_DIR --episodes 256 --seed 0
     python runners/crossplay.py --redraw results/crossplay       # figures and report.md again (after notes.md)
+    python runners/crossplay.py --train-best-responses discrete --out results/reference/adhoc/discrete
+                                                                  # BR-Prox's best responses, cached beside the matrix
 
 A RUN_DIR is a run folder with policy.pt, or a sweep folder standing for every run in it. Partners (default
 scripted,rows): scripted opponents by name, `scripted` (every one of the rows' domain), `rows` (every row's run),
@@ -52,10 +54,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--redraw", metavar="DIR", help="only redraw DIR's figures and report.md from its CSV")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--best-responses", nargs="+", metavar="RUN_OR_SWEEP",
-                        help="with --redraw DIR: runs trained against held-out partners, written as DIR's "
-                             "best_responses.csv (BR-Prox beside the ad-hoc score)")
+                        help="with --redraw DIR: runs trained against held-out partners, evaluated with them and "
+                             "written into DIR's best_responses.csv (BR-Prox beside the ad-hoc score)")
+    parser.add_argument("--train-best-responses", metavar="DOMAIN",
+                        help="train a best response to each held-out member of DOMAIN missing from --out DIR's "
+                             "best_responses.csv, evaluate it with that member and add its row (resumable)")
+    parser.add_argument("--members", help="with --train-best-responses: comma-separated held-out members (default all)")
+    parser.add_argument("--runs-dir", default="results/best_responses",
+                        help="with --train-best-responses: where the runs go, RUNS_DIR/DOMAIN/MEMBER "
+                             "(default results/best_responses)")
+    parser.add_argument("--seeds", type=int, default=1, help="with --train-best-responses: seeds each (default 1)")
+    parser.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
+                        help="with --train-best-responses: a config override for every best response (repeatable)")
+    parser.add_argument("--iterations", type=int,
+                        help="with --train-best-responses: training iterations (default: the learner's reference budget)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="crossplay: %(message)s", stream=sys.stderr)
+    if args.train_best_responses:
+        return train_best_responses(parser, args)
 
     from sidewalk.report.crossplay import (
         CONVENTIONS_CSV,
@@ -120,16 +136,42 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def write_best_responses(folder: str, runs: list[str]) -> int:
-    """``folder/best_responses.csv`` from the best-response runs; 2 with one error line where they do not fit."""
-    from sidewalk.report.crossplay import BEST_RESPONSES_CSV, best_responses_from_runs
-    from sidewalk.run_folder import atomic_write
+    """The best-response runs evaluated into ``folder/best_responses.csv``; 2 with one error line where they do not
+    fit."""
+    from sidewalk.best_responses import best_responses_from_runs, write_cache
 
     try:
-        table = best_responses_from_runs(runs)
+        write_cache(folder, best_responses_from_runs(runs))
     except (ValueError, FileNotFoundError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    atomic_write(Path(folder) / BEST_RESPONSES_CSV, lambda tmp: table.to_csv(tmp, index=False))
+    return 0
+
+
+def train_best_responses(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """``--train-best-responses DOMAIN --out DIR``: the package's ``train_best_responses``, then DIR's report
+    redrawn where DIR holds a matrix; 2 with one error line for bad input, before any training."""
+    if args.runs or args.redraw or args.best_responses:
+        parser.error("--train-best-responses takes --out DIR and no RUN_DIR, --redraw or --best-responses")
+    if not args.out:
+        parser.error("--out DIR is required: the folder of best_responses.csv (the matrix's)")
+    import torch
+
+    from sidewalk.best_responses import train_best_responses as train
+    from sidewalk.report.crossplay import CROSSPLAY_CSV, write_crossplay_report
+
+    torch.set_num_threads(args.threads)
+    members = [name.strip() for name in args.members.split(",") if name.strip()] if args.members else None
+    try:
+        path = train(args.train_best_responses, args.out, args.runs_dir, members, seeds=args.seeds,
+                     iterations=args.iterations, episodes=args.episodes, seed=args.seed,
+                     show_progress=not args.no_progress, extra=args.override)
+    except (ValueError, TypeError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(f"crossplay: {path}", file=sys.stderr)
+    if (Path(args.out) / CROSSPLAY_CSV).exists():
+        print(f"crossplay: {write_crossplay_report(args.out)}", file=sys.stderr)
     return 0
 
 

@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
@@ -228,17 +229,20 @@ def heldout_columns(domain: str, known: dict[Path, Player]) -> list[Column]:
     ``heldout:<member>``; a shipped learned member already in ``known`` shares its ``Player``."""
     from sidewalk.opponents.population import population
 
-    columns = []
-    for name, member in population(domain, "heldout").items():
-        kwargs = member.kwargs(domain)
-        if member.opponent == "policy":
-            path = Path(kwargs["path"])
-            player = known.get(path.resolve()) or load_player(path)
-            known[path.resolve()] = player
-            columns.append(Column(f"{HELDOUT}:{name}", player, heldout=True))
-        else:
-            columns.append(Column(f"{HELDOUT}:{name}", opponent=member.opponent, params=kwargs, heldout=True))
-    return columns
+    return [heldout_column(domain, name, member, known) for name, member in population(domain, "heldout").items()]
+
+
+def heldout_column(domain: str, name: str, member: Any, known: dict[Path, Player] | None = None) -> Column:
+    """Held-out ``member`` (a ``population.Member``) named ``name`` as the column ``heldout:<name>``; a learned one's
+    ``Player`` taken from, or added to, ``known``."""
+    kwargs = member.kwargs(domain)
+    if member.opponent != "policy":
+        return Column(f"{HELDOUT}:{name}", opponent=member.opponent, params=kwargs, heldout=True)
+    known = {} if known is None else known
+    path = Path(kwargs["path"])
+    player = known.get(path.resolve()) or load_player(path)
+    known[path.resolve()] = player
+    return Column(f"{HELDOUT}:{name}", player, heldout=True)
 
 
 def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], domain: str) -> list[Column]:
@@ -359,16 +363,16 @@ class DistinctPlayer(Opponent):
             raise ValueError("a sampling player acts differently in worlds that look alike: run it on every world")
         super().__init__(player.env, controlled=player.controlled, ego=player.ego)
         self.player = player
-        self.in_keys = [OBSERVATION_KEY]
+        self.in_keys = list(player.in_keys)  # the observation, or what the env computes a partner's own one from
         self._zero_action = player.env.full_action_spec[ACTION_KEY].zero()
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        observation = tensordict.get(OBSERVATION_KEY)
-        batch = observation.shape[0]
-        first_of, inverse = distinct_rows(observation.reshape(batch, -1))
-        placeholder = self._zero_action[first_of]  # the player fills in its agents' columns of a joint action
-        seen = TensorDict({OBSERVATION_KEY: observation[first_of], ACTION_KEY: placeholder},
-                          batch_size=[first_of.numel()])
+        inputs = tensordict.select(*self.in_keys)
+        batch = inputs.batch_size[0]
+        first_of, inverse = distinct_rows(
+            torch.cat([inputs.get(key).reshape(batch, -1).to(torch.float64) for key in self.in_keys], dim=-1))
+        seen = TensorDict({key: inputs.get(key)[first_of] for key in self.in_keys}, batch_size=[first_of.numel()])
+        seen.set(ACTION_KEY, self._zero_action[first_of])  # the player fills in its agents' columns of a joint action
         acted = self.player(seen).get(ACTION_KEY)[inverse]  # (B, N, ...): the controlled agents' columns set
         joint = tensordict.get(ACTION_KEY, None)
         joint = acted if joint is None else joint.clone()

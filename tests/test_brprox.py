@@ -1,19 +1,24 @@
 """BR-Prox (ZSC-Eval): the ad-hoc score with each held-out partner's score over its best response's, capped at 1."""
 
+from pathlib import Path
+
 import pandas as pd
 import pytest
 from omegaconf import OmegaConf
 
+from sidewalk.best_responses import (
+    BEST_RESPONSE_COLUMNS,
+    best_responses_from_runs,
+    member_overrides,
+    read_cache,
+    train_best_responses,
+    write_cache,
+)
 from sidewalk.compose import compose
 from sidewalk.config import validate
 from sidewalk.experiment import Trial
-from sidewalk.report.crossplay import (
-    BEST_RESPONSES_CSV,
-    adhoc_table,
-    best_responses_from_runs,
-    br_prox_scores,
-    read_best_responses,
-)
+from sidewalk.opponents.population import population
+from sidewalk.report.crossplay import BEST_RESPONSES_CSV, adhoc_table, br_prox_scores, read_best_responses
 
 TINY = ["num_envs=4", "iterations=2", "eval_every=2", "eval_episodes=8", "logger=none", "plots=false",
         "algo.learning_starts=0", "algo.frames_per_batch=16", "algo.batch_size=16"]
@@ -21,7 +26,8 @@ TINY = ["num_envs=4", "iterations=2", "eval_every=2", "eval_episodes=8", "logger
 
 def matrix(scores: dict[str, dict[str, float]]) -> pd.DataFrame:
     """A cross-play frame of held-out cells: run → partner → team success, one condition."""
-    rows = [{"row_label": "learner", "row_run": run, "partner": f"heldout:{partner}", "team_success": value,
+    rows = [{"row_label": "learner", "row_run": run, "partner": f"heldout:{partner}", "partner_label": partner,
+             "team_success": value,
              "heldout": True, "skipped": "", "distinct_episodes": 256}
             for run, partners in scores.items() for partner, value in partners.items()]
     return pd.DataFrame(rows)
@@ -65,16 +71,79 @@ def train(folder, overrides):
 
 def test_runs_against_held_out_members_become_rows_and_others_are_refused(tmp_path):
     train(tmp_path / "brs" / "keep_left", ["opponent=convention", "opponent.params.style=keep_left"])
-    table = best_responses_from_runs([tmp_path / "brs"])
-    assert table["member"].tolist() == ["keep_left"] and table["runs"].tolist() == [1]
-    assert 0 <= table["success"].iloc[0] <= 1
+    rows = best_responses_from_runs([tmp_path / "brs"], episodes=8)
+    assert [row["member"] for row in rows] == ["keep_left"] and rows[0]["seeds"] == 1
+    assert 0 <= rows[0]["success"] <= 1 and rows[0]["budget"] == 2
     train(tmp_path / "other" / "wide", ["opponent=convention", "opponent.params.style=keep_left",
                                         "opponent.params.lane_fraction=0.85"])  # a training member, not held out
     with pytest.raises(ValueError, match="match no held-out partner"):
         best_responses_from_runs([tmp_path / "other"])
 
 
+def test_a_member_is_named_by_its_opponent_and_settings():
+    members = population("discrete", "heldout")
+    assert member_overrides("discrete", members["keep_left"]) == ["opponent=convention", "opponent.params.style=keep_left"]
+    assert member_overrides("discrete", members["dijkstra"]) == ["opponent=dijkstra", "opponent.params.tie_break=progress"]
+    shipped = member_overrides("discrete", members["vdn_seed0"])
+    assert shipped[0] == "opponent=policy" and Path(shipped[1].split("=", 1)[1]).name == "vdn_seed0"
+
+
+def test_the_cache_reads_back_and_a_new_row_replaces_the_members_old_one(tmp_path):
+    assert read_cache(tmp_path).empty
+    row = {"member": "keep_left", "command": "python runners/main.py x", "budget": 300, "seeds": 1, "success": 0.5,
+           "low": float("nan"), "high": float("nan"), "note": "1 run", "episodes": 256, "distinct_low": 9,
+           "distinct_high": 9, "run_folders": "a"}
+    write_cache(tmp_path, [row, {**row, "member": "salsa", "success": 0.25}])
+    write_cache(tmp_path, [{**row, "success": 0.75}])
+    table = read_cache(tmp_path)
+    assert list(table.columns) == list(BEST_RESPONSE_COLUMNS)
+    assert table.set_index("member")["success"].to_dict() == {"salsa": 0.25, "keep_left": 0.75}
+    assert read_best_responses(tmp_path) == {"salsa": 0.25, "keep_left": 0.75}  # what the report reads
+
+
+def test_a_tiny_best_response_is_trained_evaluated_cached_and_not_trained_again(tmp_path):
+    tiny = ["num_envs=4", "eval_every=2", "eval_episodes=8", "logger=none", "algo.learning_starts=0",
+            "algo.frames_per_batch=16", "algo.batch_size=16", "env.observation=vector"]
+    path = train_best_responses("discrete", tmp_path / "matrix", tmp_path / "runs", ["keep_left"], iterations=2,
+                                episodes=8, show_progress=False, extra=tiny)
+    row = read_cache(tmp_path / "matrix").iloc[0]
+    assert path.name == BEST_RESPONSES_CSV and row["member"] == "keep_left" and row["budget"] == 2
+    assert 0 <= row["success"] <= 1 and row["episodes"] == 8 and 1 <= row["distinct_low"] <= 8
+    assert "opponent.params.style=keep_left" in row["command"] and "algo=dqn" in row["command"]
+    assert (tmp_path / "runs" / "discrete" / "keep_left" / "policy.pt").exists()
+    write_cache(tmp_path / "matrix", [{**row.to_dict(), "success": 0.123}])  # a cached member is skipped, not redone
+    train_best_responses("discrete", tmp_path / "matrix", tmp_path / "runs", ["keep_left"], iterations=2,
+                         episodes=8, show_progress=False, extra=tiny)
+    assert read_best_responses(tmp_path / "matrix") == {"keep_left": 0.123}
+    policy = tmp_path / "runs" / "discrete" / "keep_left" / "policy.pt"
+    trained_at = policy.stat().st_mtime_ns
+    (tmp_path / "matrix" / BEST_RESPONSES_CSV).unlink()  # a finished run is evaluated again, not trained again
+    train_best_responses("discrete", tmp_path / "matrix", tmp_path / "runs", ["keep_left"], iterations=2,
+                         episodes=8, show_progress=False, extra=tiny)
+    assert read_best_responses(tmp_path / "matrix") == {"keep_left": row["success"]}
+    assert policy.stat().st_mtime_ns == trained_at
+
+
+def test_the_command_refuses_an_unknown_member_before_training(runner, tmp_path, capsys):
+    code = runner("crossplay").main(["--train-best-responses", "discrete", "--members", "keep_left,moonwalk",
+                                     "--out", str(tmp_path / "m"), "--runs-dir", str(tmp_path / "runs")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("error:") == 1 and "'moonwalk'" in err and "keep_left" in err
+    assert not (tmp_path / "runs").exists() and not (tmp_path / "m").exists()
+    assert runner("crossplay").main(["--train-best-responses", "mars", "--out", str(tmp_path / "m")]) == 2
+    assert "'mars'" in capsys.readouterr().err
+
+
 def test_the_command_refuses_best_responses_without_a_matrix(runner, capsys):
     with pytest.raises(SystemExit) as exit_:
         runner("crossplay").main(["--best-responses", "x", "--out", "y", "somerun"])
     assert exit_.value.code == 2 and "--best-responses goes with --redraw" in capsys.readouterr().err
+
+
+def test_the_report_names_partners_without_a_best_response_and_those_whose_best_response_never_succeeds():
+    from sidewalk.report.crossplay import _adhoc_lines
+
+    text = "\n".join(_adhoc_lines(FRAME, "###", None, {"easy": 0.8, "hard": 0.0}))
+    assert "No best response cached for `unmatched`" in text
+    assert "best response to `hard` never succeeds" in text
+    assert "(1 partners)" in text  # only `easy` is left to BR-Prox

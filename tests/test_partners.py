@@ -238,3 +238,34 @@ def test_self_play_presets_sweep_every_learner_of_their_domain(preset, domain, l
     for name, job in zip(learners.split(","), jobs):
         experiment = validate(job)
         assert (experiment.domain, experiment.opponent, experiment.algo.name) == (domain, "self", name)
+
+
+def test_a_vector_partner_plays_in_an_image_world_on_the_vector_a_vector_world_shows(runs, tmp_path):
+    import dataclasses
+
+    vector_run = train(tmp_path / "vector", *TINY_DQN, "env.observation=vector")
+    checked(composed("opponent=policy", f"opponent.path={vector_run}"))  # the default image world takes it
+    vector_core = DiscreteSidewalkEnv(8, seed=0, params=dataclasses.replace(DiscreteSidewalkEnv(1).params,
+                                                                            observation="vector"))
+    td = vector_core.reset()
+    for _ in range(4):  # the env's own vector observations are what observe_as computes from its output's state
+        assert torch.equal(td.get(("agents", "observation")), vector_core.observe_as("vector", td))
+        assert torch.equal(td.get(("agents", "observation"))[2:5], vector_core.observe_as("vector", td[2:5]))
+        td = vector_core.step(td.set(("agents", "action"), torch.randint(0, 4, (8, 2)))).get("next")
+    image_core = DiscreteSidewalkEnv(8, seed=0)
+    in_image = PolicyOpponent(image_core, controlled=(1,), ego=0, path=vector_run)
+    in_vector = PolicyOpponent(vector_core, controlled=(1,), ego=0, path=vector_run)
+    image_td = image_core.reset()
+    image_td.set(("agents", "action"), torch.zeros(8, 2, dtype=torch.long))
+    seen = image_td.clone().set(("agents", "observation"), image_core.observe_as("vector", image_td))
+    assert torch.equal(in_image(image_td).get(("agents", "action")), in_vector(seen).get(("agents", "action")))
+    with pytest.raises(ValueError, match="'image'"):
+        vector_core.observe_as("image", td)
+
+
+def test_cross_play_pairs_an_image_row_with_a_vector_partner(runs, tmp_path):
+    from sidewalk.crossplay import run_crossplay
+
+    vector_run = train(tmp_path / "vector", *TINY_DQN, "env.observation=vector")
+    frame = run_crossplay([runs["dqn"]], [str(vector_run)], episodes=8, noise=0.0, show_progress=False).frame
+    assert (frame["skipped"] == "").all() and frame["episodes"].tolist() == [8]

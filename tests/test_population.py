@@ -61,7 +61,7 @@ def test_a_member_is_drawn_per_world_at_its_resets_from_the_envs_seed():
 
 # Members without random draws: played alone beside the population, they act as its copies do.
 DETERMINISTIC = {
-    "discrete": ["dijkstra_near", "keep_left_wide", "always_yields_late", "never_yields_offset"],
+    "discrete": ["dijkstra_near", "keep_left_wide", "always_yields_late", "iql_seed1"],  # a vector MLP, image world
     "continuous": ["prm_roadmap1", "keep_right_wide", "always_yields_late", "ippo_seed1"],
 }
 
@@ -92,19 +92,23 @@ def test_a_population_plays_the_two_agent_sidewalk_only():
         PopulationOpponent(core("discrete", layout="door", n_agents=3), controlled=(1, 2))
 
 
-def test_the_shipped_partners_are_small_weights_only_files_in_the_wheel():
+@pytest.mark.parametrize(("domain", "names"), [
+    ("continuous", [f"{algo}_seed{seed}" for algo in ("ippo", "mappo") for seed in range(3)]),
+    ("discrete", [f"iql_seed{seed}" for seed in range(3)] + [f"vdn_seed{seed}" for seed in (0, 1, 3)]),
+])
+def test_the_shipped_partners_are_small_weights_only_files_in_the_wheel(domain, names):
     learned = [
         m.params["partner"]
-        for split in POPULATIONS["continuous"].values()
+        for split in POPULATIONS[domain].values()
         for m in split.values()
         if m.opponent == "policy"
     ]
-    assert sorted(learned) == sorted(f"{algo}_seed{seed}" for algo in ("ippo", "mappo") for seed in range(3))
+    assert sorted(learned) == sorted(names)
     patterns = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"][
         "sidewalk"
     ]
     for name in learned:
-        file = PARTNERS_DIR / "continuous" / name / "policy.pt"
+        file = PARTNERS_DIR / domain / name / "policy.pt"
         assert file.stat().st_size < 100_000
         read_torch_file(file)  # weights only: raises on anything else
         assert read_partner(file.parent).opponent == "self"

@@ -12,7 +12,7 @@ from torchrl.data.tensor_specs import BoundedDiscrete
 
 from sidewalk._checks import check_choice, check_int, check_range
 from sidewalk._torchrl import set_uniform_box
-from sidewalk.envs.base import COSTS, RENDER_MODES, SidewalkEnvBase, new_output
+from sidewalk.envs.base import AGENT_GROUP, COSTS, RENDER_MODES, SidewalkEnvBase, new_output
 from sidewalk.envs.layouts import GridLayout, RandomGridLayout, grid_layout, grid_room
 from sidewalk.envs.layouts.jitter import JitteredGridLayout
 from sidewalk.envs.rewards import RewardParams
@@ -130,6 +130,8 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
     Params = DiscreteParams
     ACTION_LABELS = ACTIONS
     shaping_weight_name = None  # two shaping terms, weighed in _advance: c_center and c_progress
+    PARTNER_OBSERVATIONS = ("vector",)  # a vector is cheap to compute from the state in any world; an image is not
+    PARTNER_OBSERVATION_KEYS = tuple((AGENT_GROUP, key) for key in ("state", "goal", "present", "terminated"))
 
     room_sides = ("width_cells", "length_cells")
     STATE_WIDTH = 5  # cell row, col, goal row, col (scaled to [0, 1] by the grid's extent), present
@@ -347,6 +349,17 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
             "state": torch.stack([row, col], dim=-1),
             "goal": torch.stack([goal_row, goal_col], dim=-1),
         }
+
+    def observe_as(self, kind: str, tensordict: Any) -> torch.Tensor:
+        """The agents' observations an env of ``observation=kind`` (``PARTNER_OBSERVATIONS``: ``"vector"``) gives in
+        the worlds of ``tensordict``, this env's output or rows of it (read: ``PARTNER_OBSERVATION_KEYS``, the agents'
+        cells, goals, presence and ends), whatever this env's own observation: (rows, N, fields·N)."""
+        check_choice("partner observation", kind, self.PARTNER_OBSERVATIONS)
+        agents = tensordict.get(AGENT_GROUP)
+        state, goal = agents.get("state"), agents.get("goal")
+        active = ~agents.get("terminated").squeeze(-1)  # the base ends an agent exactly when it stops being active
+        return self._vector(state[..., 0], state[..., 1], goal[..., 0], goal[..., 1],
+                            agents.get("present").squeeze(-1), active)
 
     def _image(
         self, row: torch.Tensor, col: torch.Tensor, present: torch.Tensor, worlds: torch.Tensor | None

@@ -17,7 +17,8 @@ collection policy (``sample=True``). Every learner can be a partner:
   are unchanged by a rotation).
 
 ``check_partner`` runs the checks before any compute (``sidewalk.config.validate`` calls it): the folder holds a
-policy, and it was trained in this domain and scenario with the same observation; noise, rewards, the time limit,
+policy, and it was trained in this domain and scenario with the same observation (or one the env computes for it,
+``PARTNER_OBSERVATIONS``: a grid partner trained on vectors plays in an image world); noise, rewards, the time limit,
 what happens to crashed agents and how far starts and goals were moved may differ. Anything else raises ``PartnerMismatch`` naming the differences.
 """
 
@@ -167,12 +168,15 @@ def check_partner(path: str | Path, domain: str, env_params: Any, ego: int | Non
         if f.name in MAY_DIFFER:
             continue
         theirs, ours = getattr(partner.env_params, f.name), getattr(env_params, f.name)
+        if f.name == "observation" and theirs in _env_class(domain).PARTNER_OBSERVATIONS:
+            continue  # the env computes the partner's own observation for it (PolicyOpponent)
         if theirs != ours:
             differ.append(f"env.{f.name}={theirs!r} (this run: {ours!r})")
     if differ:
         raise PartnerMismatch(
             f"{shown} was trained on another world: {', '.join(differ)}. A partner must share the domain, scenario "
-            f"and observation; only {', '.join(MAY_DIFFER)} may differ"
+            f"and observation (or have one the env computes for it: {_env_class(domain).PARTNER_OBSERVATIONS}); only "
+            f"{', '.join(MAY_DIFFER)} may differ"
         )
     n_agents = _env_class(domain).layout_for(env_params).n_agents
     if controlled is None:
@@ -265,6 +269,11 @@ class PolicyOpponent(Opponent):
         self._policy, self._decode = self._rebuild(self.partner, env, sample)
         self._maps = [role_map(self.partner.domain, env.params, self.partner.ego, agent) if self.partner.ego is not None
                       else "same" for agent in self.controlled]
+        # A partner trained on another observation kind (a grid vector in an image world) sees its own, from the env.
+        own = getattr(self.partner.env_params, "observation", None)
+        self._own_observation = own if own != getattr(env.params, "observation", None) else None
+        if self._own_observation is not None:
+            self.in_keys = list(type(env).PARTNER_OBSERVATION_KEYS)
 
     @staticmethod
     def _rebuild(partner: Partner, env: SidewalkEnvBase, sample: bool):
@@ -286,7 +295,10 @@ class PolicyOpponent(Opponent):
 
     @torch.no_grad()
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        observation = tensordict.get(OBSERVATION_KEY)  # (B, N, ...)
+        if self._own_observation is None:
+            observation = tensordict.get(OBSERVATION_KEY)  # (B, N, ...)
+        else:
+            observation = self.env.observe_as(self._own_observation, tensordict)
         batch = observation.shape[0]
         partner = self.partner
         if partner.opponent == "self":

@@ -4,8 +4,9 @@ heldout``, docs/guide/adhoc.md).
 
 ``POPULATIONS`` is the one table of both: per domain, a *training* and a *held-out* population, disjoint by
 member. The held-out one holds the domain's planner, the five conventions at their defaults
-(``sidewalk.opponents.convention``), the salsa walker (``sidewalk.opponents.salsa``) and, in the continuous world, the self-play policies of MAPPO's three seeds; the
-training one holds the planner and the conventions at other settings and IPPO's three self-play seeds. Learned
+(``sidewalk.opponents.convention``), the salsa walker (``sidewalk.opponents.salsa``) and three self-play seeds of
+MAPPO (continuous) or VDN (grid); the training one holds the planner and the conventions at other settings and three
+self-play seeds of IPPO (continuous) or IQL (grid). Learned
 members are policy files shipped in the package (``sidewalk/partners/<domain>/<member>/policy.pt``, read as weights
 only, like any ``policy.pt``), so no one trains to use them.
 """
@@ -83,9 +84,13 @@ POPULATIONS: dict[str, dict[str, dict[str, Member]]] = {
             # The planners of the populations keep fixed tie-breaks (version 1): a member is one style of play.
             "dijkstra_near": Member("dijkstra", {"avoid_radius_cells": 1, "avoid_cost": 5.0, "tie_break": "progress"}),
             **_TRAINING_CONVENTIONS,
+            # Self-play policies on vector observations (small MLPs), playing in image worlds too (PolicyOpponent).
+            **{f"iql_seed{seed}": _learned(f"iql_seed{seed}") for seed in range(3)},
         },
         "heldout": {
             "dijkstra": Member("dijkstra", {"tie_break": "progress"}), **_HELDOUT_CONVENTIONS, "salsa": Member("salsa"),
+            # VDN's seed 2 never passed itself (team success 0.0 at 480 iterations): seed 3 stands in for it.
+            **{f"vdn_seed{seed}": _learned(f"vdn_seed{seed}") for seed in (0, 1, 3)},
         },
     },
 }

@@ -191,51 +191,20 @@ def read_best_responses(folder: Path) -> dict[str, float]:
     return dict(zip(table["member"].astype(str), table["success"].astype(float)))
 
 
-def best_responses_from_runs(paths: Sequence[str | Path]) -> pd.DataFrame:
-    """``best_responses.csv``'s rows from run folders trained against held-out members (``paths``: runs or sweeps):
-    each run's partner matched to the member of its domain's held-out population whose opponent and settings it
-    trained with (``sidewalk.opponents.population``), its final team success (``summary.json``) averaged over the
-    member's runs. A run that matches no held-out member raises ``ValueError`` naming it and the members."""
-    from sidewalk.opponents.population import population
-    from sidewalk.report.runs import find_run_folders, load_run
-
-    found: dict[str, list[tuple[float, str]]] = {}
-    for folder in find_run_folders(paths):
-        run = load_run(folder)
-        member = _heldout_member(run.flat, population(run.flat["env.domain"], "heldout"))
-        if member is None:
-            raise ValueError(f"{folder} trained against opponent={run.flat.get('opponent.name')!r} with settings "
-                             "that match no held-out partner")
-        found.setdefault(member, []).append((float(run.summary["team/success_rate"]), str(folder)))
-    rows = [{"member": member, "success": float(np.mean([s for s, _ in runs])), "runs": len(runs),
-             "run_folders": " ".join(folder for _, folder in runs)} for member, runs in found.items()]
-    return pd.DataFrame(rows, columns=["member", "success", "runs", "run_folders"])
-
-
-def _heldout_member(flat: dict[str, Any], members: dict[str, Any]) -> str | None:
-    """The held-out member whose opponent and settings (its defaults but where it says otherwise) the run's
-    ``opponent.*`` config holds."""
-    from sidewalk.datasets import opponent_config
-
-    for name, member in members.items():
-        if flat.get("opponent.name") != member.opponent:
-            continue
-        if member.opponent == "policy":
-            if Path(str(flat.get("opponent.path", ""))).name == member.params["partner"]:
-                return name
-        elif all(flat.get(f"opponent.params.{key}") == value
-                 for key, value in opponent_config(member.opponent, member.params).items()):
-            return name
-    return None
-
-
-def _br_prox_text(table: pd.DataFrame, best: dict[str, float]) -> str:
+def _br_prox_text(members: Sequence[str], best: dict[str, float]) -> str:
+    """What BR-Prox rests on: which held-out ``members`` have a best response (``best``), which are left out, why."""
     if not best:
         return (f"BR-Prox (each partner's score over its best response's, ZSC-Eval) needs `{BEST_RESPONSES_CSV}` "
                 "beside the matrix: no partner here has a best response yet, so only the raw score is given.")
-    return (f"BR-Prox: each partner's team success over that of a best response trained against it "
-            f"(`{BEST_RESPONSES_CSV}`), capped at 1, then the same IQM over runs × partners; partners without a best "
-            "response, or whose best response never succeeds, are left out (the count says how many remain).")
+    missing = [f"`{name}`" for name in members if name not in best]
+    never = [f"`{name}`" for name in members if name in best and not best[name] > 0]
+    text = (f"BR-Prox: each partner's team success over that of a best response trained against it "
+            f"(`{BEST_RESPONSES_CSV}`), capped at 1, then the same IQM over runs × partners.")
+    if missing:
+        text += f" No best response cached for {', '.join(missing)}: left out of BR-Prox, kept in the raw score."
+    if never:
+        text += f" The best response to {', '.join(never)} never succeeds (the ratio is undefined): left out too."
+    return text
 
 
 def _heldout(frame: pd.DataFrame) -> pd.DataFrame:
@@ -280,7 +249,7 @@ def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None, best:
             "stratified-bootstrap interval over runs (seeds)."
         ),
         "",
-        _br_prox_text(table, best),
+        _br_prox_text([name.removeprefix("heldout:") for name in _ordered(_heldout(frame)["partner"])], best),
         "",
         "| condition | runs | partners | IQM | 95 % interval | mean | distinct episodes a cell | BR-Prox IQM [95 %] |",
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
