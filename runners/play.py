@@ -7,8 +7,8 @@
     sidewalk-play env=continuous opponent=proxy opponent.params.dataset=sidewalk-play/continuous-prm-v0
 
 ``key=value`` arguments are config overrides as for runners/main.py (env, layout, noise, partner and its settings).
-The page serves on 127.0.0.1 only unless --host says otherwise. Keys: arrows (grid: one cell a step, the game waits
-for a key; continuous: up/down accelerate and brake, left/right turn), space pauses, R restarts. Every episode is
+The page serves on 127.0.0.1 only unless --host says otherwise. Keys: arrows (grid: one cell a press, held: one a
+step, none: the game waits; continuous: up/down accelerate and brake, left/right turn), space pauses, R restarts. Every episode is
 saved to a Minari dataset (docs/guide/datasets.md): --dataset-id, --datasets DIR, or --no-record. Guide:
 docs/guide/play.md.
 """

@@ -125,7 +125,7 @@ def test_a_continuous_episode_played_by_held_keys_reaches_the_goal_and_is_record
 
 
 @needs_chromium
-def test_pause_holds_the_game_and_restart_starts_the_next_world(serve, browser):
+def test_pause_holds_the_game_restart_starts_the_next_world_and_a_held_arrow_walks_on(serve, browser):
     server = serve("opponent=dijkstra", record=False)
     page = browser.new_page()
     page.goto(server.url)
@@ -140,13 +140,18 @@ def test_pause_holds_the_game_and_restart_starts_the_next_world(serve, browser):
     page.keyboard.press("r")
     page.wait_for_function("document.getElementById('episode').textContent === '2'", timeout=5_000)
     assert page.inner_text("#step") == "0"
+    page.keyboard.down("ArrowRight")  # a held arrow walks on, one cell a step
+    page.wait_for_function("Number(document.getElementById('step').textContent) >= 3", timeout=10_000)
+    page.keyboard.up("ArrowRight")
+    assert page.inner_text("#outcome") == "running" and server.game.info["state"][0][1] >= 3
     page.close()
 
 
-def request(server, path: str, body: bytes | None = None, method: str | None = None):
+def request(server, path: str, body: bytes | None = None, headers: dict[str, str] | None = None):
+    headers = {"Content-Type": "application/json", **(headers or {})} if body is not None else headers or {}
     try:
         with urllib.request.urlopen(urllib.request.Request(server.url.rstrip("/") + path, data=body,
-                                                           method=method)) as response:
+                                                           headers=headers)) as response:
             return response.status, response.read()
     except urllib.error.HTTPError as error:
         return error.code, error.read()
@@ -163,6 +168,41 @@ def test_a_malformed_message_is_a_400_naming_it_and_the_server_goes_on(serve, bo
     assert status == 400 and words in json.loads(reply)["error"]
     status, reply = request(server, "/api/step", b'{"move": "right"}')
     assert status == 200 and json.loads(reply)["step"] == 1
+
+
+def test_a_message_that_does_not_say_it_is_json_is_a_400(serve):
+    server = serve("opponent=dijkstra", record=False)
+    status, reply = request(server, "/api/step", b'{"move": "right"}', {"Content-Type": "text/plain"})
+    assert status == 400 and json.loads(reply)["error"] == ("a message of Content-Type 'text/plain' is not valid; "
+                                                            "valid: application/json")
+    assert server.game.steps == 0
+
+
+def test_a_request_naming_another_host_is_refused(serve):
+    server = serve("opponent=dijkstra", record=False)
+    for path, body in (("/", None), ("/api/state", None), ("/api/step", b'{"move": "right"}')):
+        status, reply = request(server, path, body, {"Host": f"rebound.example:{server.server_address[1]}"})
+        assert status == 403 and "'rebound.example:" in json.loads(reply)["error"]
+    assert server.game.steps == 0
+    status, _ = request(server, "/", headers={"Host": f"localhost:{server.server_address[1]}"})
+    assert status == 200
+
+
+def test_an_episode_cut_by_a_restart_or_the_servers_end_is_saved_truncated(serve, tmp_path):
+    server = serve("opponent=dijkstra", dataset_id="mine/cut-v0")
+    for _ in range(3):
+        request(server, "/api/step", b'{"move": "right"}')
+    request(server, "/api/reset", b"{}")
+    request(server, "/api/reset", b"{}")  # nothing played since: nothing saved
+    for _ in range(2):
+        request(server, "/api/step", b'{"move": "up"}')
+    server.shutdown()
+    server.server_close()
+    dataset = minari.load_dataset("mine/cut-v0")
+    episodes = list(dataset.iterate_episodes())
+    assert [len(episode.actions) for episode in episodes] == [3, 2]
+    assert all(episode.truncations[-1] and not episode.terminations.any() for episode in episodes)
+    assert list(episodes[1].actions) == [0, 0]  # up, up
 
 
 def test_a_continuous_message_takes_only_minus_one_zero_or_one(serve):
