@@ -7,6 +7,7 @@ presses what a person aiming for the goal would press.
 
 import json
 import math
+import os
 import shutil
 import socket
 import urllib.error
@@ -108,7 +109,9 @@ def test_a_continuous_episode_played_by_held_keys_reaches_the_goal_and_is_record
     page.wait_for_selector("#frame[src^='data:image/png']")
     held: set[str] = set()
 
-    def press(info, _):
+    def press(info, steps):
+        if steps == 8 and os.environ.get("SIDEWALK_PLAY_SCREENSHOT"):  # the guide's picture: docs/guide/play.md
+            page.screenshot(path=os.environ["SIDEWALK_PLAY_SCREENSHOT"])
         wanted = continuous_keys(info)
         for key in held - wanted:
             page.keyboard.up(key)
@@ -205,6 +208,19 @@ def test_an_episode_cut_by_a_restart_or_the_servers_end_is_saved_truncated(serve
     assert list(episodes[1].actions) == [0, 0]  # up, up
 
 
+def test_the_episodes_played_here_make_a_proxy_partner_to_play_against(serve, tmp_path):
+    recorder = serve("opponent=dijkstra", dataset_id="mine/walks-v0")
+    for _ in range(6):
+        request(recorder, "/api/step", b'{"move": "right"}')
+    recorder.server_close()
+    server = serve("opponent=proxy", "opponent.params.dataset=mine/walks-v0",
+                   f"opponent.params.data_path={tmp_path / 'datasets'}", "opponent.params.epochs=20", record=False)
+    start = server.game.info["state"][1].copy()
+    status, reply = request(server, "/api/step", b'{"move": "up"}')
+    assert status == 200 and json.loads(reply)["step"] == 1
+    assert server.game.describe()["partner"] == "proxy" and (server.game.info["state"][1] != start).any()
+
+
 def test_a_continuous_message_takes_only_minus_one_zero_or_one(serve):
     server = serve("env=continuous", "opponent=prm", record=False)
     status, reply = request(server, "/api/step", b'{"accelerate": 5, "turn": 0}')
@@ -238,6 +254,22 @@ def test_bad_input_is_one_error_line_before_serving(runner, capsys, tmp_path, ar
     assert run_play(runner, *argv, "--datasets", str(tmp_path)) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and words in err[0], err
+
+
+# test_experiment.py's tiny grid DQN run: finished_run trains it once for the whole suite.
+TINY_GRID_RUN = ["num_envs=4", "iterations=12", "eval_every=4", "eval_episodes=8", "checkpoint_every=4", "logger=none",
+                 "plots=false", "algo.frames_per_batch=16", "algo.batch_size=16", "algo.buffer_size=2000",
+                 "algo.learning_starts=0", "algo.updates_per_batch=1"]
+
+
+def test_a_run_folders_policy_is_a_partner_of_its_own_domain_only(finished_run, serve, runner, capsys, tmp_path):
+    run = finished_run(TINY_GRID_RUN)
+    server = serve("opponent=policy", f"opponent.path={run}", record=False)
+    assert server.game.describe()["partner"] == "policy" and server.game.step({"move": "right"})["step"] == 1
+    assert run_play(runner, "env=continuous", "opponent=policy", f"opponent.path={run}", "--no-browser",
+                    "--no-record") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "trained in the discrete domain" in err[0], err
 
 
 def test_a_port_in_use_is_one_error_line(runner, capsys, tmp_path):
