@@ -16,6 +16,7 @@ docs/guide/play.md.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import traceback
 import webbrowser
@@ -44,6 +45,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
+def stop(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     from sidewalk.play.command import build_server
@@ -61,6 +66,7 @@ def main(argv: list[str] | None = None) -> int:
           f"(recording: {game['recording'] or 'off'}); Ctrl-C stops", flush=True)
     if not args.no_browser:
         webbrowser.open(server.url)
+    signal.signal(signal.SIGTERM, stop)  # kill, like Ctrl-C, saves the episode under way
     try:
         server.serve_forever()
     except KeyboardInterrupt:
