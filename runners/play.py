@@ -7,8 +7,8 @@
     sidewalk-play env=continuous opponent=proxy opponent.params.dataset=sidewalk-play/continuous-prm-v0
 
 ``key=value`` arguments are config overrides as for runners/main.py (env, layout, noise, partner and its settings).
-The page serves on 127.0.0.1 only unless --host says otherwise. Keys: arrows (grid: one cell a step, the game waits
-for a key; continuous: up/down accelerate and brake, left/right turn), space pauses, R restarts. Every episode is
+The page serves on 127.0.0.1 only unless --host says otherwise. Keys: arrows (grid: one cell a press, held: one a
+step, none: the game waits; continuous: up/down accelerate and brake, left/right turn), space pauses, R restarts. Every episode is
 saved to a Minari dataset (docs/guide/datasets.md): --dataset-id, --datasets DIR, or --no-record. Guide:
 docs/guide/play.md.
 """
@@ -16,6 +16,7 @@ docs/guide/play.md.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import traceback
 import webbrowser
@@ -44,6 +45,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
+def stop(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     from sidewalk.play.command import build_server
@@ -61,6 +66,7 @@ def main(argv: list[str] | None = None) -> int:
           f"(recording: {game['recording'] or 'off'}); Ctrl-C stops", flush=True)
     if not args.no_browser:
         webbrowser.open(server.url)
+    signal.signal(signal.SIGTERM, stop)  # kill, like Ctrl-C, saves the episode under way
     try:
         server.serve_forever()
     except KeyboardInterrupt:

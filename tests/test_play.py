@@ -7,6 +7,7 @@ presses what a person aiming for the goal would press.
 
 import json
 import math
+import os
 import shutil
 import socket
 import urllib.error
@@ -108,7 +109,9 @@ def test_a_continuous_episode_played_by_held_keys_reaches_the_goal_and_is_record
     page.wait_for_selector("#frame[src^='data:image/png']")
     held: set[str] = set()
 
-    def press(info, _):
+    def press(info, steps):
+        if steps == 8 and os.environ.get("SIDEWALK_PLAY_SCREENSHOT"):  # the guide's picture: docs/guide/play.md
+            page.screenshot(path=os.environ["SIDEWALK_PLAY_SCREENSHOT"])
         wanted = continuous_keys(info)
         for key in held - wanted:
             page.keyboard.up(key)
@@ -125,7 +128,7 @@ def test_a_continuous_episode_played_by_held_keys_reaches_the_goal_and_is_record
 
 
 @needs_chromium
-def test_pause_holds_the_game_and_restart_starts_the_next_world(serve, browser):
+def test_pause_holds_the_game_restart_starts_the_next_world_and_a_held_arrow_walks_on(serve, browser):
     server = serve("opponent=dijkstra", record=False)
     page = browser.new_page()
     page.goto(server.url)
@@ -140,13 +143,18 @@ def test_pause_holds_the_game_and_restart_starts_the_next_world(serve, browser):
     page.keyboard.press("r")
     page.wait_for_function("document.getElementById('episode').textContent === '2'", timeout=5_000)
     assert page.inner_text("#step") == "0"
+    page.keyboard.down("ArrowRight")  # a held arrow walks on, one cell a step
+    page.wait_for_function("Number(document.getElementById('step').textContent) >= 3", timeout=10_000)
+    page.keyboard.up("ArrowRight")
+    assert page.inner_text("#outcome") == "running" and server.game.info["state"][0][1] >= 3
     page.close()
 
 
-def request(server, path: str, body: bytes | None = None, method: str | None = None):
+def request(server, path: str, body: bytes | None = None, headers: dict[str, str] | None = None):
+    headers = {"Content-Type": "application/json", **(headers or {})} if body is not None else headers or {}
     try:
         with urllib.request.urlopen(urllib.request.Request(server.url.rstrip("/") + path, data=body,
-                                                           method=method)) as response:
+                                                           headers=headers)) as response:
             return response.status, response.read()
     except urllib.error.HTTPError as error:
         return error.code, error.read()
@@ -163,6 +171,54 @@ def test_a_malformed_message_is_a_400_naming_it_and_the_server_goes_on(serve, bo
     assert status == 400 and words in json.loads(reply)["error"]
     status, reply = request(server, "/api/step", b'{"move": "right"}')
     assert status == 200 and json.loads(reply)["step"] == 1
+
+
+def test_a_message_that_does_not_say_it_is_json_is_a_400(serve):
+    server = serve("opponent=dijkstra", record=False)
+    status, reply = request(server, "/api/step", b'{"move": "right"}', {"Content-Type": "text/plain"})
+    assert status == 400 and json.loads(reply)["error"] == ("a message of Content-Type 'text/plain' is not valid; "
+                                                            "valid: application/json")
+    assert server.game.steps == 0
+
+
+def test_a_request_naming_another_host_is_refused(serve):
+    server = serve("opponent=dijkstra", record=False)
+    for path, body in (("/", None), ("/api/state", None), ("/api/step", b'{"move": "right"}')):
+        status, reply = request(server, path, body, {"Host": f"rebound.example:{server.server_address[1]}"})
+        assert status == 403 and "'rebound.example:" in json.loads(reply)["error"]
+    assert server.game.steps == 0
+    status, _ = request(server, "/", headers={"Host": f"localhost:{server.server_address[1]}"})
+    assert status == 200
+
+
+def test_an_episode_cut_by_a_restart_or_the_servers_end_is_saved_truncated(serve, tmp_path):
+    server = serve("opponent=dijkstra", dataset_id="mine/cut-v0")
+    for _ in range(3):
+        request(server, "/api/step", b'{"move": "right"}')
+    request(server, "/api/reset", b"{}")
+    request(server, "/api/reset", b"{}")  # nothing played since: nothing saved
+    for _ in range(2):
+        request(server, "/api/step", b'{"move": "up"}')
+    server.shutdown()
+    server.server_close()
+    dataset = minari.load_dataset("mine/cut-v0")
+    episodes = list(dataset.iterate_episodes())
+    assert [len(episode.actions) for episode in episodes] == [3, 2]
+    assert all(episode.truncations[-1] and not episode.terminations.any() for episode in episodes)
+    assert list(episodes[1].actions) == [0, 0]  # up, up
+
+
+def test_the_episodes_played_here_make_a_proxy_partner_to_play_against(serve, tmp_path):
+    recorder = serve("opponent=dijkstra", dataset_id="mine/walks-v0")
+    for _ in range(6):
+        request(recorder, "/api/step", b'{"move": "right"}')
+    recorder.server_close()
+    server = serve("opponent=proxy", "opponent.params.dataset=mine/walks-v0",
+                   f"opponent.params.data_path={tmp_path / 'datasets'}", "opponent.params.epochs=20", record=False)
+    start = server.game.info["state"][1].copy()
+    status, reply = request(server, "/api/step", b'{"move": "up"}')
+    assert status == 200 and json.loads(reply)["step"] == 1
+    assert server.game.describe()["partner"] == "proxy" and (server.game.info["state"][1] != start).any()
 
 
 def test_a_continuous_message_takes_only_minus_one_zero_or_one(serve):
@@ -198,6 +254,22 @@ def test_bad_input_is_one_error_line_before_serving(runner, capsys, tmp_path, ar
     assert run_play(runner, *argv, "--datasets", str(tmp_path)) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and words in err[0], err
+
+
+# test_experiment.py's tiny grid DQN run: finished_run trains it once for the whole suite.
+TINY_GRID_RUN = ["num_envs=4", "iterations=12", "eval_every=4", "eval_episodes=8", "checkpoint_every=4", "logger=none",
+                 "plots=false", "algo.frames_per_batch=16", "algo.batch_size=16", "algo.buffer_size=2000",
+                 "algo.learning_starts=0", "algo.updates_per_batch=1"]
+
+
+def test_a_run_folders_policy_is_a_partner_of_its_own_domain_only(finished_run, serve, runner, capsys, tmp_path):
+    run = finished_run(TINY_GRID_RUN)
+    server = serve("opponent=policy", f"opponent.path={run}", record=False)
+    assert server.game.describe()["partner"] == "policy" and server.game.step({"move": "right"})["step"] == 1
+    assert run_play(runner, "env=continuous", "opponent=policy", f"opponent.path={run}", "--no-browser",
+                    "--no-record") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "trained in the discrete domain" in err[0], err
 
 
 def test_a_port_in_use_is_one_error_line(runner, capsys, tmp_path):

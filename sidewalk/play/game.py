@@ -87,19 +87,20 @@ class Game:
         self.action_scale = None if high is None else np.asarray(high, dtype=np.float32)
         dt_s = getattr(self.face.view.core.params, "dt_s", None)
         self.steps_per_s = 1.0 / dt_s if dt_s else GRID_STEPS_PER_S
-        self.episodes = 0
+        self.episodes, self.steps, self.done = 0, 0, True
         self.reset()
 
     def describe(self) -> dict[str, Any]:
         """What the page needs before the first frame: domain, partner, keys, step rate."""
-        keys = ("arrows: one cell per step; the game waits for a key" if self.domain == "discrete" else
+        keys = ("arrows: one cell a press, or one a step while held; with no key the game waits" if self.domain == "discrete" else
                 "up/down: accelerate/brake, left/right: turn; released keys coast")
         return {"domain": self.domain, "partner": self.kwargs["opponent"],
                 "partner_settings": self.kwargs.get("opponent_kwargs", {}), "keys": keys,
                 "steps_per_s": self.steps_per_s, "recording": self.recording.dataset_id if self.recording else None}
 
     def reset(self) -> dict[str, Any]:
-        """A new episode in the next world (seeds ``seed``, ``seed + 1``, ...)."""
+        """A new episode in the next world (seeds ``seed``, ``seed + 1``, ...); an episode cut short is saved first."""
+        self.save_unfinished()
         self._observation, info = self.env.reset(seed=self.seed + self.episodes)
         self.episodes += 1
         self.steps, self.total_return, self.done, self.info = 0, 0.0, False, info
@@ -135,6 +136,20 @@ class Game:
         if self.done and self.recording is not None:
             self.save()
         return self.state()
+
+    def save_unfinished(self) -> None:
+        """Save the episode under way, if any step of it was played (it ends truncated): a restart or ``close``."""
+        if self.recording is not None and self.steps and not self.done:
+            self.save()
+            self.done = True
+
+    def close(self) -> None:
+        """End the game (once; later calls do nothing): the episode under way is saved, the env closed."""
+        if self.env is None:
+            return
+        self.save_unfinished()
+        self.env.close()
+        self.env = None
 
     def save(self) -> None:
         from sidewalk.datasets import save

@@ -8,6 +8,10 @@ Routes (nothing else is served; every other path is a 404):
 - ``POST /api/step``: one step with the keys held (``Game.action``); a malformed message is a 400 whose JSON
   ``error`` names the problem, and the server goes on.
 
+A message must say it is JSON (``Content-Type: application/json``), which another site's page cannot send without
+the browser asking first (a CORS preflight, refused here); on a loopback address a request must name this machine
+(``Host``), so that a site whose name is pointed at 127.0.0.1 (DNS rebinding) reads and drives nothing.
+
 The partner, the world and the datasets folder come from the command line only; a request names none of them.
 """
 
@@ -25,6 +29,7 @@ from sidewalk.play.game import Game, GameError
 ASSETS = {"/": ("index.html", "text/html"), "/index.html": ("index.html", "text/html"),
           "/play.js": ("play.js", "text/javascript"), "/play.css": ("play.css", "text/css")}
 MAX_MESSAGE_BYTES = 4096  # a step message is a few keys
+LOOPBACK_NAMES = ("127.0.0.1", "localhost", "[::1]")
 
 
 def asset(name: str) -> bytes:
@@ -43,6 +48,8 @@ class PlayHandler(BaseHTTPRequestHandler):
 
     def do_GET(self) -> None:
         path = self.path.split("?", 1)[0]
+        if not self._host_allowed():
+            return
         if path in ("/api/game", "/api/state"):
             game = self.server.game
             with game.lock:
@@ -55,6 +62,8 @@ class PlayHandler(BaseHTTPRequestHandler):
 
     def do_POST(self) -> None:
         path = self.path.split("?", 1)[0]
+        if not self._host_allowed():
+            return
         if path not in ("/api/reset", "/api/step"):
             self._json(HTTPStatus.NOT_FOUND, {"error": f"no such endpoint: {path}"})
             return
@@ -68,7 +77,19 @@ class PlayHandler(BaseHTTPRequestHandler):
             return
         self._json(HTTPStatus.OK, state)
 
+    def _host_allowed(self) -> bool:
+        """Whether the request names this server (always, off loopback); else a 403 is sent."""
+        allowed = self.server.allowed_hosts
+        host = self.headers.get("Host", "")
+        if allowed is None or host in allowed:
+            return True
+        self._json(HTTPStatus.FORBIDDEN, {"error": f"Host {host!r} is not this server; valid: {', '.join(allowed)}"})
+        return False
+
     def _message(self) -> Any:
+        kind = self.headers.get("Content-Type", "").split(";", 1)[0].strip().lower()
+        if kind != "application/json":
+            raise GameError(f"a message of Content-Type {kind!r} is not valid; valid: application/json")
         try:
             length = int(self.headers.get("Content-Length") or 0)
         except ValueError:
@@ -101,11 +122,21 @@ class PlayServer(ThreadingHTTPServer):
     def __init__(self, game: Game, host: str = "127.0.0.1", port: int = 8765, verbose: bool = False) -> None:
         self.game, self.verbose = game, verbose
         super().__init__((host, port), PlayHandler)
+        port = self.server_address[1]
+        loopback = host in LOOPBACK_NAMES or host == "::1" or host.startswith("127.")
+        # Off loopback the server answers to any of the machine's names, as its user asked with --host.
+        self.allowed_hosts = (*(f"{name}:{port}" for name in LOOPBACK_NAMES), f"{host}:{port}") if loopback else None
 
     @property
     def url(self) -> str:
         host, port = self.server_address[:2]
         return f"http://{host}:{port}/"
+
+    def server_close(self) -> None:
+        """Stop listening and end the game (the episode under way is saved)."""
+        super().server_close()
+        with self.game.lock:
+            self.game.close()
 
     def start(self) -> threading.Thread:
         """Serve in a background thread (tests, notebooks); ``shutdown()`` stops it."""

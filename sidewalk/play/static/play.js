@@ -41,10 +41,16 @@ function keysHeld() {
   return { accelerate: axis("ArrowUp", "ArrowDown"), turn: axis("ArrowLeft", "ArrowRight") };
 }
 
+// The grid's move this step: a tap not yet played, else the arrow held last (none held: the grid has no "stay").
+function gridMove() {
+  const held = [...game.held].filter((key) => key in GRID_KEYS);
+  return game.moves.shift() || (held.length ? GRID_KEYS[held[held.length - 1]] : undefined);
+}
+
 function tick() {
   if (game.paused || game.done || game.busy || !game.info) return;
   if (game.info.domain === "discrete") {
-    const move = game.moves.shift();
+    const move = gridMove();
     if (move) send("/api/step", { move });
   } else {
     send("/api/step", keysHeld());
@@ -65,8 +71,10 @@ function restart() {
 document.addEventListener("keydown", (event) => {
   if (event.key in GRID_KEYS) {
     event.preventDefault();
+    if (event.repeat) return;
+    game.held.delete(event.key);  // re-added last: the arrow pressed last leads
     game.held.add(event.key);
-    if (!event.repeat && game.moves.length < 8) game.moves.push(GRID_KEYS[event.key]);
+    if (game.moves.length < 8) game.moves.push(GRID_KEYS[event.key]);
   } else if (event.key === " ") {
     event.preventDefault();
     togglePause();
