@@ -27,6 +27,7 @@ import datetime
 import json
 import logging
 import shlex
+import signal
 import sys
 import time
 from pathlib import Path
@@ -159,6 +160,7 @@ def train_best_responses(parser: argparse.ArgumentParser, args: argparse.Namespa
 
     from sidewalk.best_responses import train_best_responses as train
     from sidewalk.report.crossplay import CROSSPLAY_CSV, write_crossplay_report
+    from sidewalk.stops import RunInterrupted
 
     torch.set_num_threads(args.threads)
     members = [name.strip() for name in args.members.split(",") if name.strip()] if args.members else None
@@ -169,6 +171,10 @@ def train_best_responses(parser: argparse.ArgumentParser, args: argparse.Namespa
     except (ValueError, TypeError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except RunInterrupted as stopped:  # the same command continues it: cached members are skipped, the run resumed
+        print(f"\n{signal.Signals(stopped.signum).name} received: checkpointed at iteration {stopped.iteration} in "
+              f"{stopped.run_dir}; run the same command again to continue", file=sys.stderr)
+        return 128 + stopped.signum
     print(f"crossplay: {path}", file=sys.stderr)
     if (Path(args.out) / CROSSPLAY_CSV).exists():
         print(f"crossplay: {write_crossplay_report(args.out)}", file=sys.stderr)

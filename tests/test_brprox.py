@@ -147,3 +147,19 @@ def test_the_report_names_partners_without_a_best_response_and_those_whose_best_
     assert "No best response cached for `unmatched`" in text
     assert "best response to `hard` never succeeds" in text
     assert "(1 partners)" in text  # only `easy` is left to BR-Prox
+
+
+def test_a_stopped_best_response_job_says_how_to_continue_in_one_line(runner, tmp_path, capsys, monkeypatch):
+    import signal
+
+    import sidewalk.best_responses
+    from sidewalk.stops import RunInterrupted
+
+    def preempted(*args, **kwargs):
+        raise RunInterrupted(signal.SIGTERM, 7, tmp_path / "runs" / "discrete" / "keep_left")
+
+    monkeypatch.setattr(sidewalk.best_responses, "train_best_responses", preempted)
+    code = runner("crossplay").main(["--train-best-responses", "discrete", "--out", str(tmp_path / "m")])
+    err = capsys.readouterr().err.strip()
+    assert code == 128 + signal.SIGTERM and "\n" not in err and "Traceback" not in err
+    assert "SIGTERM received: checkpointed at iteration 7" in err and "run the same command again" in err
