@@ -29,3 +29,9 @@ def compose(overrides: Sequence[str], conf_dir: Path | None = None, hydra_config
 def compose_experiment(overrides: Sequence[str], conf_dir: Path | None = None) -> Experiment:
     """The validated ``Experiment`` that ``runners/main.py`` would run with ``overrides``."""
     return validate(compose(overrides, conf_dir))
+
+
+def fitting_algo(domain: str) -> str:
+    """A learner that fits ``domain``, for configs of scripted play: validation checks the learner against the
+    domain even where none learns."""
+    return "dqn" if domain == "discrete" else "trpo"

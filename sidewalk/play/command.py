@@ -21,13 +21,12 @@ def compose_game_experiment(overrides: Sequence[str]):
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from sidewalk.compose import compose
+    from sidewalk.compose import compose, fitting_algo
     from sidewalk.config import validate
 
     domain = next((item.split("=", 1)[1] for item in overrides if item.startswith("env=")), "discrete")
-    algo = "dqn" if domain == "discrete" else "trpo"  # validation checks a learner against the domain: pick one that fits
     try:
-        cfg = compose([f"algo={algo}", *overrides])
+        cfg = compose([f"algo={fitting_algo(domain)}", *overrides])
     except (HydraException, OmegaConfBaseException) as error:
         text = " ".join(str(error).split()).split(" Config search path")[0]  # Hydra's folders say nothing here
         raise ValueError(text) from None

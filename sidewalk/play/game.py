@@ -11,7 +11,7 @@ from __future__ import annotations
 import base64
 import io
 import threading
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import gymnasium
@@ -51,11 +51,9 @@ class Recording:
 def env_kwargs(experiment: Experiment) -> dict[str, Any]:
     """The ``gymnasium.make`` keywords of the experiment's world and partner (the core's every parameter); the
     episode ends when the person's agent is done."""
-    import dataclasses
-
     # The person's episode ends with their own outcome: a grid ego at its goal could not move on.
     return {"opponent": experiment.opponent, "ego": experiment.ego, "end_on_ego_done": True,
-            "opponent_kwargs": dict(experiment.opponent_params), **dataclasses.asdict(experiment.env_params)}
+            "opponent_kwargs": dict(experiment.opponent_params), **asdict(experiment.env_params)}
 
 
 def frame_png(frame: np.ndarray) -> str:

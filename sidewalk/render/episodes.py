@@ -51,12 +51,12 @@ class Episode(NamedTuple):
 
 def scripted_world(domain: str, opponent: str, seed: int, overrides: list[str]):
     """The validated experiment config of scripted agents, and one world (a core env) built from it."""
-    from sidewalk.compose import compose_experiment
+    from sidewalk.compose import compose_experiment, fitting_algo
     from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 
-    # The algorithm is irrelevant here, but validation checks it against the domain, so pick one that fits.
-    algo = "dqn" if domain == "discrete" else "trpo"
-    experiment = compose_experiment([f"env={domain}", f"opponent={opponent}", f"algo={algo}", f"seed={seed}", *overrides])
+    experiment = compose_experiment(
+        [f"env={domain}", f"opponent={opponent}", f"algo={fitting_algo(domain)}", f"seed={seed}", *overrides]
+    )
     core_cls = DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
     return experiment, core_cls(1, device="cpu", seed=seed, params=experiment.env_params)
 
