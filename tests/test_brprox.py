@@ -147,6 +147,7 @@ def test_the_report_names_partners_without_a_best_response_and_those_whose_best_
     assert "No best response cached for `unmatched`" in text
     assert "best response to `hard` never succeeds" in text
     assert "(1 partners)" in text  # only `easy` is left to BR-Prox
+    assert "`easy` 0.80, `hard` 0.00" in text  # the denominators, as cached
 
 
 def test_a_stopped_best_response_job_says_how_to_continue_in_one_line(runner, tmp_path, capsys, monkeypatch):

@@ -198,8 +198,9 @@ def _br_prox_text(members: Sequence[str], best: dict[str, float]) -> str:
                 "beside the matrix: no partner here has a best response yet, so only the raw score is given.")
     missing = [f"`{name}`" for name in members if name not in best]
     never = [f"`{name}`" for name in members if name in best and not best[name] > 0]
+    scores = ", ".join(f"`{name}` {best[name]:.2f}" for name in members if name in best)
     text = (f"BR-Prox: each partner's team success over that of a best response trained against it "
-            f"(`{BEST_RESPONSES_CSV}`), capped at 1, then the same IQM over runs × partners.")
+            f"(`{BEST_RESPONSES_CSV}`: {scores}), capped at 1, then the same IQM over runs × partners.")
     if missing:
         text += f" No best response cached for {', '.join(missing)}: left out of BR-Prox, kept in the raw score."
     if never:
