@@ -27,7 +27,6 @@ import datetime
 import json
 import logging
 import shlex
-import signal
 import sys
 import time
 from pathlib import Path
@@ -172,8 +171,7 @@ def train_best_responses(parser: argparse.ArgumentParser, args: argparse.Namespa
         print(f"error: {error}", file=sys.stderr)
         return 2
     except RunInterrupted as stopped:  # the same command continues it: cached members are skipped, the run resumed
-        print(f"\n{signal.Signals(stopped.signum).name} received: checkpointed at iteration {stopped.iteration} in "
-              f"{stopped.run_dir}; run the same command again to continue", file=sys.stderr)
+        print(f"\n{stopped.checkpointed}; run the same command again to continue", file=sys.stderr)
         return 128 + stopped.signum
     print(f"crossplay: {path}", file=sys.stderr)
     if (Path(args.out) / CROSSPLAY_CSV).exists():

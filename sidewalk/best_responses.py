@@ -155,8 +155,8 @@ def train_best_responses(
 ) -> Path:
     """Train and evaluate the best response to each held-out member of ``domain`` (``members``, default all) that
     ``out/best_responses.csv`` does not hold yet, writing each row as it is done; return the CSV's path. ``extra``:
-    config overrides added to ``RECIPES[domain]``'s. Unknown
-    members, domains or counts raise ``ValueError`` before anything is trained; a tqdm bar counts the members."""
+    config overrides added to ``RECIPES[domain]``'s. Unknown members, domains or counts raise ``ValueError`` before
+    anything is trained; a tqdm bar counts the members."""
     from tqdm import tqdm
 
     table = check_members(domain, members)
@@ -182,7 +182,6 @@ def _iterations(folder: Path) -> int:
     from sidewalk.run_folder import CONFIG
 
     return int(OmegaConf.load(Path(folder) / CONFIG)["iterations"])
-
 
 
 def best_responses_from_runs(

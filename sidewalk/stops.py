@@ -29,9 +29,11 @@ class RunInterrupted(Exception):
     """SIGTERM, SIGUSR1 or SIGINT arrived; the run wrote a checkpoint at the end of ``iteration`` and stopped."""
 
     def __init__(self, signum: int, iteration: int, run_dir: Path, continue_command: str | None = None) -> None:
-        self.signum, self.iteration, self.run_dir = signum, iteration, run_dir
-        super().__init__(f"{signal.Signals(signum).name} received: checkpointed at iteration {iteration} in {run_dir}; "
-                         f"{how_to_continue(continue_command)}")
+        self.signum, self.iteration = signum, iteration
+        # What happened, without how to go on: a caller that continues the run otherwise says its own way.
+        name = signal.Signals(signum).name
+        self.checkpointed = f"{name} received: checkpointed at iteration {iteration} in {run_dir}"
+        super().__init__(f"{self.checkpointed}; {how_to_continue(continue_command)}")
 
 
 class LearnerDiverged(RuntimeError):

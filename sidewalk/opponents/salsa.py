@@ -19,9 +19,9 @@ our reading of the simulations published with its code (sidewalk 2.5 m × 15 m, 
 
 | parameter | default | source |
 | --- | --- | --- |
-| ``right_prob`` | 0.6 | the paper: its biased belief weighs the two passing sides 1.2 : 0.8, a 60 : 40 split; it biases a belief, we take the split as the share of worlds in which it first picks its right |
+| ``right_prob`` | 0.6 | the paper's code as we read it: its biased belief weighs the two passing sides 1.2 : 0.8, a 60 : 40 split; it biases a belief, we take the split as the share of worlds in which it first picks its right |
 | ``notice_fraction`` | 1.0 | the paper: its pedestrians plan 7 s ahead, more than the 5.8 s two of them need to close a 15 m sidewalk at 1.3 m/s each, so each sees the other from the start: here the whole sidewalk (4 m, 14 cells) |
-| ``reaction_steps`` | 1 | the paper replans whenever its risk passes the threshold, on plans of 0.25 s steps (4 Hz); 0.25 s is 1 step of our continuous world's 0.2 s (the grid: 1 step). Its perception lag (a first-order filter of the other's speed and heading, rate 0.25 /s) has no counterpart here |
+| ``reaction_steps`` | 1 | the paper's code as we read it: it replans whenever its risk passes the threshold, on plans of 0.25 s steps (4 Hz); 0.25 s is 1 step of our continuous world's 0.2 s (the grid: 1 step). Its perception lag (a first-order filter of the other's speed and heading, rate 0.25 /s) has no counterpart here |
 | ``switch_prob`` | 0.5 | ours: the paper has no such number (its switches come from the risk); a re-decision with no side preferred |
 | ``lane_fraction`` | 0.6 | ours (the conventions' lane: 0.72 m off the centre line; 2 of 3 grid cells): the paper keeps a 0.3 m comfortable range around bodies 0.25 m apart at contact, ours touch at 0.6 m |
 | ``lookahead_m`` | 0.4 m | ours: it steers for a point this far ahead on its lane, a sharper step aside than the conventions' 0.8 m, so it clears a walker on the centre line of our 4 m sidewalk |
@@ -39,9 +39,11 @@ from sidewalk._checks import check_int, check_range
 from sidewalk.envs.base import SidewalkEnvBase
 from sidewalk.opponents.convention import LANE_FRACTION, ConventionOpponent
 
-RIGHT_PROB = 0.6  # the cultural bias, the share of worlds in which it first picks its right (the paper's 1.2 : 0.8)
+# The share of worlds in which it first picks its right: the paper's code's 1.2 : 0.8 bias, as we read it.
+RIGHT_PROB = 0.6
 NOTICE_FRACTION = 1.0  # it picks its side once the oncoming agent is within this share of the sidewalk's length
-REACTION_STEPS = 1  # steps of mirrored position before it re-decides (the paper's 0.25 s plan step: 1 step of 0.2 s)
+# Steps of mirrored position before it re-decides: its code's 0.25 s plan step, as we read it (1 step of 0.2 s).
+REACTION_STEPS = 1
 SWITCH_PROB = 0.5  # the chance that a re-decision switches sides (ours)
 
 
