@@ -23,8 +23,6 @@ for bad arguments or a pairing that cannot be played (a missing policy.pt, an un
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
 import logging
 import shlex
 import sys
@@ -32,7 +30,7 @@ import time
 from pathlib import Path
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         description=__doc__.splitlines()[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -68,28 +66,17 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --train-best-responses: a config override for every best response (repeatable)")
     parser.add_argument("--iterations", type=int,
                         help="with --train-best-responses: training iterations (default: the learner's reference budget)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="crossplay: %(message)s", stream=sys.stderr)
     if args.train_best_responses:
         return train_best_responses(parser, args)
-
-    from sidewalk.report.crossplay import (
-        CONVENTIONS_CSV,
-        CROSSPLAY_CSV,
-        CROSSPLAY_JSON,
-        write_crossplay_report,
-    )
-
     if args.redraw:
-        if args.runs:
-            parser.error("--redraw takes no RUN_DIR")
-        if not (Path(args.redraw) / CROSSPLAY_CSV).exists():
-            print(f"error: {args.redraw} has no {CROSSPLAY_CSV}", file=sys.stderr)
-            return 2
-        if args.best_responses and write_best_responses(args.redraw, args.best_responses) != 0:
-            return 2
-        print(f"crossplay: {write_crossplay_report(args.redraw)}", file=sys.stderr)
-        return 0
+        return redraw(parser, args)
     if args.best_responses:
         parser.error("--best-responses goes with --redraw DIR (the matrix whose partners they answer)")
     if not args.runs:
@@ -98,11 +85,31 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--out DIR is required")
     if args.episodes < 1:
         parser.error(f"--episodes={args.episodes} must be at least 1")
+    return play_matrix(args, argv)
 
+
+def redraw(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """``--redraw DIR``: DIR's figures and report again, after adding ``--best-responses`` runs where given."""
+    from sidewalk.report.crossplay import CROSSPLAY_CSV, write_crossplay_report
+
+    if args.runs:
+        parser.error("--redraw takes no RUN_DIR")
+    if not (Path(args.redraw) / CROSSPLAY_CSV).exists():
+        print(f"error: {args.redraw} has no {CROSSPLAY_CSV}", file=sys.stderr)
+        return 2
+    if args.best_responses and write_best_responses(args.redraw, args.best_responses) != 0:
+        return 2
+    print(f"crossplay: {write_crossplay_report(args.redraw)}", file=sys.stderr)
+    return 0
+
+
+def play_matrix(args: argparse.Namespace, argv: list[str] | None) -> int:
+    """Every row with every partner, written into ``--out``; 2 with one error line for a pairing that cannot be
+    played."""
     import torch
 
-    from sidewalk.crossplay import run_crossplay
-    from sidewalk.run_folder import atomic_write, git_revision, package_versions
+    from sidewalk.crossplay import run_crossplay, write_matrix
+    from sidewalk.report.crossplay import CROSSPLAY_CSV
 
     torch.set_num_threads(args.threads)
     start = time.perf_counter()
@@ -114,24 +121,11 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:  # CrossplayError: a missing policy.pt, an unknown partner, a mismatching run
         print(f"error: {error}", file=sys.stderr)
         return 2
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    meta = {
-        "command": "python runners/crossplay.py " + shlex.join(sys.argv[1:] if argv is None else argv),
-        "created": datetime.datetime.now().isoformat(timespec="seconds"),
-        **matrix.meta,
-        "wall_clock_s": round(time.perf_counter() - start, 1),
-        "git_revision": git_revision(),
-        "versions": package_versions(),
-    }
-    atomic_write(out / CROSSPLAY_CSV, lambda tmp: matrix.frame.to_csv(tmp, index=False))
-    atomic_write(out / CONVENTIONS_CSV, lambda tmp: matrix.conventions.to_csv(tmp, index=False))
-    atomic_write(out / CROSSPLAY_JSON, lambda tmp: tmp.write_text(json.dumps(meta, indent=2) + "\n"))
-    report = write_crossplay_report(out)
-    print(
-        f"crossplay: {out / CROSSPLAY_CSV} ({len(matrix.frame)} cells, {meta['wall_clock_s']:.1f} s), {report}",
-        file=sys.stderr,
-    )
+    wall_clock_s = time.perf_counter() - start
+    command = "python runners/crossplay.py " + shlex.join(sys.argv[1:] if argv is None else argv)
+    report = write_matrix(matrix, args.out, command, wall_clock_s)
+    print(f"crossplay: {Path(args.out) / CROSSPLAY_CSV} ({len(matrix.frame)} cells, {wall_clock_s:.1f} s), {report}",
+          file=sys.stderr)
     return 0
 
 

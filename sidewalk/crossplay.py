@@ -32,6 +32,7 @@ with the reason in the ``skipped`` column rather than stopping the matrix.
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -622,3 +623,30 @@ def run_crossplay(
         "partners": [column.name for column in columns],
     }
     return Matrix(frame, meta, conventions)
+
+
+def write_matrix(matrix: Matrix, out: str | Path, command: str, wall_clock_s: float) -> Path:
+    """``matrix``'s CSVs and ``crossplay.json`` (with ``command``, the time, the code and package versions) written
+    into ``out``, each file atomically, then its report; returns the report's path."""
+    from sidewalk.report.crossplay import (
+        CONVENTIONS_CSV,
+        CROSSPLAY_CSV,
+        CROSSPLAY_JSON,
+        write_crossplay_report,
+    )
+    from sidewalk.run_folder import atomic_write, git_revision, package_versions
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "command": command,
+        "created": datetime.datetime.now().isoformat(timespec="seconds"),
+        **matrix.meta,
+        "wall_clock_s": round(wall_clock_s, 1),
+        "git_revision": git_revision(),
+        "versions": package_versions(),
+    }
+    atomic_write(out / CROSSPLAY_CSV, lambda tmp: matrix.frame.to_csv(tmp, index=False))
+    atomic_write(out / CONVENTIONS_CSV, lambda tmp: matrix.conventions.to_csv(tmp, index=False))
+    atomic_write(out / CROSSPLAY_JSON, lambda tmp: tmp.write_text(json.dumps(meta, indent=2) + "\n"))
+    return write_crossplay_report(out)
