@@ -142,8 +142,9 @@ def test_a_replica_updates_as_its_lone_learner(name):
 
 @pytest.mark.parametrize("unit", ["conv", "mlp"])
 def test_the_accelerator_map_equals_the_cpu_loop(unit):
-    """A replicated unit's vmap forward (the path taken on an accelerator, which no CI machine here has) gives the
-    loop's outputs and gradients, replica by replica, and replica r is the lone unit holding its slice."""
+    """A replicated unit's vmap forward (the path taken on an accelerator, which no CI machine here has) and, for an
+    MLP, its batched matmuls (the path it takes everywhere) give the loop's outputs and gradients, replica by
+    replica, and replica r is the lone unit holding its slice."""
     from torch import nn
     from torchrl.modules import MLP, ConvNet
 
@@ -157,14 +158,17 @@ def test_the_accelerator_map_equals_the_cpu_loop(unit):
         build, x = (lambda: MLP(in_features=6, out_features=2, num_cells=[8, 8])), torch.randn(3, 5, 6)
     network = replicate_(build(), 3)
     gradients = {}
-    for way in ("forward_vmapped", "forward_looped"):
+    ways = ("forward_vmapped", "forward_looped", *(("forward_batched", "__call__") if unit == "mlp" else ()))
+    for way in ways:
         network.zero_grad()
         output = getattr(network, way)(x)
         output.square().sum().backward()
         gradients[way] = (output.detach(), [p.grad.clone() for p in network.parameters()])
-    torch.testing.assert_close(gradients["forward_vmapped"][0], gradients["forward_looped"][0])
-    for vmapped, looped in zip(gradients["forward_vmapped"][1], gradients["forward_looped"][1]):
-        torch.testing.assert_close(vmapped, looped)
+    for way in ways:
+        torch.testing.assert_close(gradients[way][0], gradients["forward_looped"][0])
+        for mapped, looped in zip(gradients[way][1], gradients["forward_looped"][1]):
+            torch.testing.assert_close(mapped, looped)
+    assert network.__dict__.get("linear_only", False) == (unit == "mlp")  # the conv stack stays mapped
     lone = build()
     lone.load_state_dict({name: value[2] for name, value in network.state_dict().items()})
     torch.testing.assert_close(lone(x[2]), gradients["forward_looped"][0][2])

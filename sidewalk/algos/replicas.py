@@ -3,7 +3,8 @@
 A replicated network is the lone network with every parameter and buffer stacked on a leading replica axis, under
 the lone network's own names: ``replicate_(network, R)`` gives each unit (TorchRL's MLP and conv stack, a linear or
 conv layer, a state-independent scale) a class whose forward maps the lone unit over the replica axis
-(``torch.func.functional_call`` of it, under ``torch.vmap`` on an accelerator, over each replica's slice on a CPU).
+(``torch.func.functional_call`` of it, under ``torch.vmap`` on an accelerator, over each replica's slice on a CPU;
+a unit whose only weights are linear layers, an MLP, runs its own forward with each layer one batched matmul).
 Everything between the units (activations, flattening, TorchRL's actors, distributions and value estimators) is
 shape-agnostic, so a
 learner's update is written once for data with an optional leading replica axis: ``lead`` is ``()`` for a lone
@@ -38,11 +39,20 @@ class _Replicated:
     """What a replicated unit's class adds to the unit's own: a forward mapped over the replica axis."""
 
     def forward(self, *inputs: torch.Tensor) -> Any:
+        if self.__dict__.get("linear_only"):
+            return self.forward_batched(*inputs)
         # On a CPU each replica's slice runs as a lone unit does: vmap's batched kernels were slower than a loop here
-        # for our conv stack and for MLPs on 2048 samples (``python -m sidewalk.bench.replicas --units``).
+        # for our conv stack (``python -m sidewalk.bench.replicas --units``).
         if inputs[0].device.type != "cpu":
             return self.forward_vmapped(*inputs)
         return self.forward_looped(*inputs)
+
+    def forward_batched(self, *inputs: torch.Tensor) -> Any:
+        """The unit's own forward, its linear layers (``_BatchedLinear``) each one matmul over the replica axis: for
+        a small MLP a loop's cost is each replica's call, not its arithmetic."""
+        if isinstance(self, nn.Linear):
+            return batched_linear(inputs[0], self.weight, self.bias)
+        return super().forward(*inputs)
 
     def forward_vmapped(self, *inputs: torch.Tensor) -> Any:
         """The forward under ``torch.vmap`` over the replica axis."""
@@ -64,6 +74,29 @@ class _Replicated:
 
     def _one_replica(self, state: dict[str, torch.Tensor], inputs: tuple[torch.Tensor, ...]) -> Any:
         return functional_call(self.__dict__["replica_template"], state, inputs)
+
+
+def batched_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+    """Each replica's ``F.linear``: ``x`` (R, ..., in) with ``weight`` (R, out, in) and ``bias`` (R, out)."""
+    flat = x.reshape(x.shape[0], -1, x.shape[-1])
+    transposed = weight.transpose(1, 2)
+    out = torch.bmm(flat, transposed) if bias is None else torch.baddbmm(bias.unsqueeze(1), flat, transposed)
+    return out.reshape(*x.shape[:-1], weight.shape[1])
+
+
+class _BatchedLinear(nn.Linear):
+    """A linear layer of a replicated unit, its weight and bias stacked on the replica axis."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return batched_linear(x, self.weight, self.bias)
+
+
+def _linear_only(unit: nn.Module) -> bool:
+    """Whether ``unit`` is a linear layer, or an MLP whose every weight lies in its linear layers (the rest are its
+    elementwise activations)."""
+    return isinstance(unit, (MLP, nn.Linear)) and all(isinstance(module, nn.Linear) or not (any(module.parameters(recurse=False))
+                                                     or any(module.buffers(recurse=False)))
+               for module in unit.modules())
 
 
 _REPLICATED_CLASSES: dict[type, type] = {}
@@ -94,6 +127,11 @@ def _replicate_unit_(unit: nn.Module, replicas: int) -> None:
             setattr(owner, leaf, nn.Parameter(tensor.detach().clone()))
         else:
             owner.register_buffer(leaf, tensor.clone())
+    if _linear_only(unit):
+        unit.__dict__["linear_only"] = True
+        for layer in unit.modules():
+            if type(layer) is nn.Linear:
+                layer.__class__ = _BatchedLinear
     unit.__class__ = _replicated_class(type(unit))
     unit.__dict__["replica_template"] = template  # not a submodule: it holds no state
     unit.replicas = replicas
