@@ -7,9 +7,10 @@ Each replica is the learner at its defaults on the continuous sidewalk's ego vie
 128 worlds for TRPO and PPO). Both ways update on the same batches, each iteration's time the median of ``repeats``
 after one untimed warm-up iteration (the first creates Adam's state).
 
-With ``--units`` it times instead the replicated units themselves, the choice ``replicate_`` makes per device:
-the paper's conv stack on grid ego images and a 2x32 tanh MLP on the continuous ego observation, forward and
-forward+backward, mapped with ``torch.vmap``, looped over the replicas' slices (the CPU path), and as R lone units.
+With ``--units`` it times instead the replicated units themselves, the choice ``replicate_`` makes: the paper's
+conv stack on grid ego images and a 2x32 tanh MLP on the continuous ego observation, forward and forward+backward,
+mapped with ``torch.vmap``, looped over the replicas' slices (the conv stack's CPU path), as R lone units, and for
+the MLP as batched matmuls (its path).
 
     python -m sidewalk.bench.replicas                       # TRPO and PPO, R = 5
     python -m sidewalk.bench.replicas --replicas 3 --learners trpo --repeats 5
@@ -137,6 +138,8 @@ def _unit_ms(replicated: nn.Module, lone: Sequence[nn.Module], inputs: torch.Ten
     forwards = {"vmap": lambda: replicated.forward_vmapped(inputs),
                 "loop": lambda: replicated.forward_looped(inputs),
                 "lone": lambda: torch.stack([unit(x) for unit, x in zip(lone, inputs)])}
+    if replicated.__dict__.get("linear_only"):  # an MLP: its linear layers as batched matmuls, the path it takes
+        forwards["batched"] = lambda: replicated.forward_batched(inputs)
 
     def iteration(forward: Callable[[], torch.Tensor]) -> None:
         output = forward()
@@ -161,8 +164,9 @@ def time_units(replicas: int = 5, repeats: int = 20) -> list[dict[str, Any]]:
                 row = {"unit": name, "pass": "forward+backward" if backward else "forward", "replicas": replicas,
                        **_unit_ms(replicated, lone, inputs, backward, repeats)}
                 rows.append(row)
+                batched = f", batched matmuls {row['batched_ms']:.2f} ms" if "batched_ms" in row else ""
                 print(f"{name}, {row['pass']}: vmap {row['vmap_ms']:.2f} ms, loop {row['loop_ms']:.2f} ms, "
-                      f"{replicas} lone units {row['lone_ms']:.2f} ms", flush=True)
+                      f"{replicas} lone units {row['lone_ms']:.2f} ms{batched}", flush=True)
     return rows
 
 
