@@ -15,9 +15,13 @@ from sidewalk.opponents.base import ReplicaOpponent
 
 
 def _tensor_attributes(obj: Any) -> dict[str, Any]:
-    """An object's tensor, tensordict and dict-of-tensor attributes, plus its ``None`` ones (unset memories)."""
+    """An object's tensor, tensordict and dict-of-tensor attributes, plus its ``None`` ones (unset memories), but
+    for the scratch it declares (``Opponent.scratch``)."""
     state = {}
+    scratch = getattr(obj, "scratch", ())
     for name, value in vars(obj).items():
+        if name in scratch:
+            continue
         if isinstance(value, (torch.Tensor, TensorDictBase)) or (value is None and name.startswith("_")):
             state[name] = value
         elif isinstance(value, dict) and value and all(isinstance(v, torch.Tensor) for v in value.values()):

@@ -246,6 +246,8 @@ def test_a_snapshot_of_a_replicated_env_resumes_exactly(case):
         td = view.step_and_maybe_reset(td)[1]
     saved, saved_td = copy.deepcopy(capture_env(view)), td.clone()
     assert isinstance(saved["rng"], list) and len(saved["rng"]) == 3
+    opponents = [saved.get("opponent", {}), *saved.get("opponent_replicas", [])]
+    assert not any("_buffers" in state for state in opponents)  # the PRM's work tensors are no state to save
     actions = [draw_action(view, generator) for _ in range(25)]
     first = []
     for action in actions:

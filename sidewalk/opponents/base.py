@@ -55,6 +55,8 @@ class Opponent(TensorDictModuleBase):
     # True: one call plays every replica's worlds exactly as each replica's lone env would (per-world arithmetic);
     # False (a network, whose kernels round differently at other batch sizes): each replica's block gets its own call.
     batch_invariant: ClassVar[bool] = False
+    # Attributes a checkpoint leaves out (``sidewalk.snapshot``): scratch tensors rewritten before they are read.
+    scratch: ClassVar[tuple[str, ...]] = ()
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)

@@ -207,6 +207,8 @@ class PRMOpponent(Opponent):
     ``roadmap`` holds the roadmap, ``last_rounds`` the number of relaxation sweeps of the last call.
     """
 
+    scratch = ("_buffers",)  # reused work tensors (``_buffer``), rewritten before read: most of a checkpoint, no state
+
     name = "prm"
     domains = ("continuous",)
     batch_invariant = True  # each world's plan is its own; steering splits by replica (tests/test_env_replicas.py)
