@@ -48,10 +48,8 @@ class _Replicated:
         return self.forward_looped(*inputs)
 
     def forward_batched(self, *inputs: torch.Tensor) -> Any:
-        """The unit's own forward, its linear layers (``_BatchedLinear``) each one matmul over the replica axis: for
-        a small MLP a loop's cost is each replica's call, not its arithmetic."""
-        if isinstance(self, nn.Linear):
-            return batched_linear(inputs[0], self.weight, self.bias)
+        """The unit's own forward, its linear layers (``_BatchedLinear``, the unit itself when it is one) each one
+        matmul over the replica axis: for a small MLP a loop's cost is each replica's call, not its arithmetic."""
         return super().forward(*inputs)
 
     def forward_vmapped(self, *inputs: torch.Tensor) -> Any:
@@ -94,9 +92,13 @@ class _BatchedLinear(nn.Linear):
 def _linear_only(unit: nn.Module) -> bool:
     """Whether ``unit`` is a linear layer, or an MLP whose every weight lies in its linear layers (the rest are its
     elementwise activations)."""
-    return isinstance(unit, (MLP, nn.Linear)) and all(isinstance(module, nn.Linear) or not (any(module.parameters(recurse=False))
-                                                     or any(module.buffers(recurse=False)))
-               for module in unit.modules())
+
+    def holds_state(module: nn.Module) -> bool:
+        return any(module.parameters(recurse=False)) or any(module.buffers(recurse=False))
+
+    return isinstance(unit, (MLP, nn.Linear)) and all(
+        isinstance(module, nn.Linear) or not holds_state(module) for module in unit.modules()
+    )
 
 
 _REPLICATED_CLASSES: dict[type, type] = {}
