@@ -61,8 +61,19 @@ def test_seeds_that_overlap_do_not_separate_and_the_evidence_says_so(tmp_path):
     first_step = (
         f"n=0.1 − n=0: difference -0.10 {interval_text(levels['0.1'], levels['0.0'])}, does not separate"
     )
-    assert first_step in noise.evidence
+    assert f"between neighbouring levels: {first_step}" in noise.evidence
     assert [d.metric for d in noise.differences] == ["success_rate"] * 3
+
+
+def test_two_noise_levels_state_their_difference_once(tmp_path):
+    # Two levels have one step between neighbours, the overall difference itself: neither text nor report.csv
+    # repeats it.
+    levels = {"0.0": [0.9, 0.8, 0.85], "0.2": [0.2, 0.3, 0.1]}
+    seeded_runs(tmp_path, "fig6_discrete", "noise", levels)
+    noise = claims_of(tmp_path)[1][NOISE]
+    assert noise.verdict == "reproduced"
+    assert noise.evidence.count("difference -0.65") == 1 and "neighbouring" not in noise.evidence
+    assert [d.metric for d in noise.differences] == ["success_rate"]
 
 
 def test_a_separated_difference_smaller_than_tie_is_a_tie_and_learning_sooner_separates(tmp_path):

@@ -367,11 +367,12 @@ def noise_lowers_success(panel: Sequence[Condition]) -> list[Verdict]:
     ordered = sorted(panel, key=lambda c: float(c.flat.get("noise", 0.0)))
     agent = learner(ordered[0])
     stats = [final(c, agent, "success_rate") for c in ordered]
+    overall = compare(ordered[-1], stats[-1], ordered[0], stats[0], agent, "success_rate")
+    # With two levels the one step between neighbours is the overall difference: stated once.
     steps = [
         compare(b, b_stat, a, a_stat, agent, "success_rate")
         for (a, a_stat), (b, b_stat) in itertools.pairwise(zip(ordered, stats))
-    ]
-    overall = compare(ordered[-1], stats[-1], ordered[0], stats[0], agent, "success_rate")
+    ] if len(ordered) > 2 else []
     steps_down = not any(above_zero(step.interval, TIE) for step in steps)
     lower = below_zero(overall.interval, TIE)
     verdict = "reproduced" if lower and steps_down else "partly" if lower else "not reproduced"
@@ -385,8 +386,8 @@ def noise_lowers_success(panel: Sequence[Condition]) -> list[Verdict]:
     return [
         Verdict(
             verdict,
-            f"{agent} success {levels}; {level(ordered[-1])} − {level(ordered[0])}: {overall.text(margin=TIE)}; "
-            f"steps: {step_texts}",
+            f"{agent} success {levels}; {level(ordered[-1])} − {level(ordered[0])}: {overall.text(margin=TIE)}"
+            + (f"; between neighbouring levels: {step_texts}" if steps else ""),
             list(ordered),
             [(c, agent, "success_rate", s.mean) for c, s in zip(ordered, stats)],
             [overall, *steps],
