@@ -1,7 +1,8 @@
 """The committed reference results, and whether today's code still makes them.
 
 A reference folder (``results/reference/``, ``results/reference/safe/``) holds ``reference.json``: the commit its runs
-were made at, the command, every job it ran (its Hydra overrides) and any note that explains a probe difference. Its
+were made at, the command, every job it ran (its Hydra overrides), where its runs lie (``runs``: a folder, or one
+per group of seeds that ran every job) and any note that explains a probe difference. Its
 *probe* (``probe.csv``) is a short deterministic run of every job (seed 0 alone, a few iterations, one evaluation)
 made at that commit. ``check`` runs the same probe with today's code and compares it metric by metric (wall clock
 aside): equal, the reference is still what today's code makes; different, a change since its commit alters what a
@@ -201,11 +202,18 @@ class Reference:
     def jobs(self) -> dict[str, list[str]]:
         return self.meta["jobs"]
 
+    @property
+    def runs_folders(self) -> list[Path]:
+        """Where the runs lie: ``reference.json``'s ``runs``, one folder or a list of them, one per group of seeds
+        that trained every job (``runs/seeds0-4``, ``runs/seeds5-9``)."""
+        runs = self.meta.get("runs", "runs")
+        return [self.folder / name for name in ([runs] if isinstance(runs, str) else runs)]
+
     def committed_jobs(self) -> list[str]:
-        """The jobs whose finished runs lie in the repository (``collect``): the report is made at this commit only
-        when every job is among them."""
-        runs = self.folder / self.meta.get("runs", "runs")
-        return [job for job in self.jobs if _has_runs(runs, job, self.jobs[job])]
+        """The jobs whose finished runs lie in the repository (``collect``), in every runs folder: the report is made
+        at this commit only when every job is among them."""
+        return [job for job in self.jobs
+                if all(_has_runs(runs, job, self.jobs[job]) for runs in self.runs_folders)]
 
     def recorded_probe(self) -> pd.DataFrame:
         path = self.folder / PROBE

@@ -204,3 +204,24 @@ def test_a_job_whose_run_folders_hydra_named_counts_by_its_runs_config(tmp_path)
             (kept / name).write_bytes((summary.parent / name).read_bytes())
     partial = Reference(tmp_path, {**safe.meta, "runs": "runs"})
     assert sorted(partial.committed_jobs()) == sorted(job for job in safe.jobs if "ppo_lagrangian" not in job)
+
+
+def test_a_job_counts_once_every_group_of_seeds_has_run_it(tmp_path):
+    """A reference trained as groups of seeds (``runs``: one folder per group) has a job in the repository when
+    every group's folder holds a finished run of it, and not while one group's is missing."""
+    reference = Reference.load(REFERENCE_ROOT)
+    job = next(iter(reference.jobs))
+    groups = ["runs/seeds0-4", "runs/seeds5-9"]
+    split = Reference(tmp_path, {**reference.meta, "runs": groups})
+    assert split.runs_folders == [tmp_path / group for group in groups]
+
+    def add_run(group: str) -> None:
+        run = tmp_path / group / job / "seed0"
+        run.mkdir(parents=True)
+        for name in ("summary.json", "config.yaml"):
+            (run / name).write_bytes((reference.runs_folders[0] / job / "seed0" / name).read_bytes())
+
+    add_run(groups[0])
+    assert split.committed_jobs() == []
+    add_run(groups[1])
+    assert split.committed_jobs() == [job]
