@@ -42,7 +42,7 @@ class _Replicated:
         if self.__dict__.get("linear_only"):
             return self.forward_batched(*inputs)
         # On a CPU each replica's slice runs as a lone unit does: vmap's batched kernels were slower than a loop here
-        # for our conv stack (``python -m sidewalk.bench.replicas --units``).
+        # for our conv stack (``python -m sidewalk.bench.replica_updates --units``).
         if inputs[0].device.type != "cpu":
             return self.forward_vmapped(*inputs)
         return self.forward_looped(*inputs)

@@ -12,9 +12,9 @@ conv stack on grid ego images and a 2x32 tanh MLP on the continuous ego observat
 mapped with ``torch.vmap``, looped over the replicas' slices (the conv stack's CPU path), as R lone units, and for
 the MLP as batched matmuls (its path).
 
-    python -m sidewalk.bench.replicas                       # TRPO and PPO, R = 5
-    python -m sidewalk.bench.replicas --replicas 3 --learners trpo --repeats 5
-    python -m sidewalk.bench.replicas --units --repeats 20  # vmap against the loop, per unit
+    python -m sidewalk.bench.replica_updates                        # TRPO and PPO, R = 5
+    python -m sidewalk.bench.replica_updates --replicas 3 --learners trpo --repeats 5
+    python -m sidewalk.bench.replica_updates --units --repeats 20  # vmap against the loop, per unit
 """
 
 from __future__ import annotations
