@@ -84,7 +84,7 @@ ABSOLUTE_EPISODES = 10
 ABSOLUTE_SEED_OFFSET = 2_000_003
 
 
-def make_view(experiment: Experiment, num_envs: int, seed: int, env_params: Any = None) -> EnvBase:
+def experiment_env(experiment: Experiment, num_envs: int, seed: int, env_params: Any = None) -> EnvBase:
     """The env a learner trains or is evaluated on: the core env of ``num_envs`` worlds (``env_params``, by default
     the training worlds') seen through the experiment's view (``sidewalk.views.view_for_opponent``: ego against a
     scripted opponent or a learned partner, centralized, or self-play)."""
@@ -103,7 +103,7 @@ def make_eval_view(experiment: Experiment, seed: int | None = None, worlds: int 
     (``Experiment.eval_env_params``), seeded from the evaluation's own stream (``seed``: the experiment's)."""
     seed = experiment.seed if seed is None else seed
     worlds = experiment.eval_episodes if worlds is None else worlds
-    return make_view(experiment, worlds, seed + EVAL_SEED_OFFSET, env_params=experiment.eval_env_params)
+    return experiment_env(experiment, worlds, seed + EVAL_SEED_OFFSET, env_params=experiment.eval_env_params)
 
 
 def collector_frames_per_batch(experiment: Experiment) -> int:
@@ -181,7 +181,7 @@ class Trial:
     def _build(self) -> Parts:
         """env → view → learner → collector → replay buffer → logger."""
         exp, count = self.experiment, len(self.seeds)
-        train_env = TransformedEnv(make_view(exp, count * exp.num_envs, self.seeds if count > 1 else exp.seed),
+        train_env = TransformedEnv(experiment_env(exp, count * exp.num_envs, self.seeds if count > 1 else exp.seed),
                                    RewardSum())
         runs = []  # evaluation envs before the learner, as a lone run has always drawn them
         for seed, run_dir in zip(self.seeds, self.seed_dirs):
@@ -384,9 +384,9 @@ class Trial:
         learner = parts.learners.learner(replica)
         learner.load_policy_state_dict(best.policy)
         seed = exp.seed + ABSOLUTE_SEED_OFFSET
-        env = make_view(exp, ABSOLUTE_EPISODES * exp.eval_episodes, seed, env_params=exp.eval_env_params)
+        env = experiment_env(exp, ABSOLUTE_EPISODES * exp.eval_episodes, seed, env_params=exp.eval_env_params)
         metrics = evaluate(env, learner.evaluation_policy(), seed=seed,
-                           one_world=lambda: make_view(exp, 1, seed, env_params=exp.eval_env_params))
+                           one_world=lambda: experiment_env(exp, 1, seed, env_params=exp.eval_env_params))
         return {"iteration": best.iteration, "frames": best.iteration * parts.frames_per_batch, **metrics}
 
     def _policy_state(self, parts: Parts, replica: int) -> dict[str, Any]:

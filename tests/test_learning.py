@@ -14,7 +14,7 @@ from hydra import compose, initialize_config_dir
 
 from sidewalk.config import validate
 from sidewalk.evaluate import evaluate
-from sidewalk.experiment import EVAL_SEED_OFFSET, Trial, make_view
+from sidewalk.experiment import EVAL_SEED_OFFSET, Trial, experiment_env
 from sidewalk.schema import register_schemas
 
 pytestmark = pytest.mark.slow
@@ -28,7 +28,7 @@ def experiment(*overrides: str):
 
 
 def random_policy_success(exp) -> float:
-    view = make_view(exp, exp.eval_episodes, exp.seed + EVAL_SEED_OFFSET)
+    view = experiment_env(exp, exp.eval_episodes, exp.seed + EVAL_SEED_OFFSET)
     return evaluate(view, None, seed=exp.seed + EVAL_SEED_OFFSET)["ego/success_rate"]
 
 

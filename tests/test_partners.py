@@ -15,7 +15,7 @@ from torchrl.envs.utils import check_env_specs
 from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
-from sidewalk.experiment import EVAL_SEED_OFFSET, Trial, make_view
+from sidewalk.experiment import EVAL_SEED_OFFSET, Trial, experiment_env
 from sidewalk.opponents.policy import (
     PartnerMismatch,
     PolicyOpponent,
@@ -153,7 +153,7 @@ def test_a_loaded_partner_acts_as_the_runs_evaluation_policy(runs, name):
     the same worlds, step after step."""
     run_dir = runs[name]
     experiment = load_experiment(run_dir)
-    view = make_view(experiment, 16, experiment.seed + EVAL_SEED_OFFSET)
+    view = experiment_env(experiment, 16, experiment.seed + EVAL_SEED_OFFSET)
     policy = load_policy(run_dir, experiment, view)
     core = view.core
     agent = experiment.ego if experiment.opponent != "centralized" else 0

@@ -76,7 +76,7 @@ def untrained(
 ) -> list[dict]:
     """Ego (or team) success of each learner's untrained sampling policy, per opponent."""
     from sidewalk.evaluate import evaluate
-    from sidewalk.experiment import make_view
+    from sidewalk.experiment import experiment_env
     from sidewalk.registry import LEARNERS
 
     rows = []
@@ -84,7 +84,7 @@ def untrained(
         for opponent in opponents:
             experiment = _experiment(opponent, algo_name, overrides)
             torch.manual_seed(seed)
-            view = make_view(experiment, episodes, seed)
+            view = experiment_env(experiment, episodes, seed)
             algo = LEARNERS[algo_name](experiment.algo, view)
             metrics = evaluate(view, algo.collection_policy(), seed=seed, deterministic=False)  # it samples
             outcome = _outcome(metrics, opponent)
@@ -107,12 +107,12 @@ def scripted(
 ) -> list[dict]:
     """Ego (team) return and success of fixed policies, per opponent: walking must pay more than crashing."""
     from sidewalk.evaluate import evaluate
-    from sidewalk.experiment import make_view
+    from sidewalk.experiment import experiment_env
 
     rows = []
     for opponent in opponents:
         experiment = _experiment(opponent, "trpo", overrides)
-        view = make_view(experiment, episodes, seed)
+        view = experiment_env(experiment, episodes, seed)
         for name, action in SCRIPTED.items():
             policy = FixedAction(action, n_agents=view.n_agents if opponent == "centralized" else 1)
             outcome = _outcome(evaluate(view, policy, seed=seed), opponent)

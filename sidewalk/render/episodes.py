@@ -14,7 +14,7 @@ def rollout_run(run_dir: Path, episode: int) -> tuple[list[np.ndarray], str]:
     import torch
     from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-    from sidewalk.experiment import EVAL_SEED_OFFSET, make_view
+    from sidewalk.experiment import EVAL_SEED_OFFSET, experiment_env
     from sidewalk.report.checkpoints import load_experiment, load_policy
 
     experiment = load_experiment(run_dir)
@@ -23,7 +23,7 @@ def rollout_run(run_dir: Path, episode: int) -> tuple[list[np.ndarray], str]:
             f"--episode={episode} is out of range; the run evaluates episodes 0..{experiment.eval_episodes - 1}"
         )
     seed = experiment.seed + EVAL_SEED_OFFSET
-    env = make_view(experiment, experiment.eval_episodes, seed)
+    env = experiment_env(experiment, experiment.eval_episodes, seed)
     policy = load_policy(run_dir, experiment, env)
     env.set_seed(seed)  # as sidewalk.evaluate.run_episodes does, so the episode is the evaluation's own
     td = env.reset()
