@@ -2,6 +2,7 @@
 
     python runners/crossplay.py results/sweeps/dqn_random results/sweeps/iql_self --out results/crossplay
     python runners/crossplay.py RUN_DIR... --partners random,dijkstra,OTHER_RUN_DIR --episodes 256 --seed 0
+    python runners/crossplay.py RUN_DIR... --partners dijkstra --nominal --out DIR  # on the paper's fixed starts
     python runners/crossplay.py --redraw results/crossplay       # figures and report.md again (after notes.md)
     python runners/crossplay.py --train-best-responses discrete --out results/reference/adhoc/discrete
                                                                   # BR-Prox's best responses, cached beside the matrix
@@ -11,7 +12,8 @@ scripted,rows): scripted opponents by name, `scripted` (every one of the rows' d
 `heldout` (the held-out partner population: the ad-hoc score, docs/guide/adhoc.md), run or sweep folders. A row
 plays the agent it trained as; the partner plays every other agent; both act greedily.
 Every cell plays one episode in each of --episodes worlds seeded --seed + 1000003 (the stream a run of that seed
-is evaluated on), in the first row's training world at --noise (default: the rows' training noise when they agree).
+is evaluated on), in the first row's training world at --noise (default: the rows' training noise when they agree),
+with --nominal from the scenario's own starts and goals (eval=nominal) whatever protocol the rows trained under.
 
 Writes into --out: crossplay.csv (one row per pairing), crossplay.json (how it was made), figures/ (heatmaps of
 success, collisions and team success, by run and by condition) and report.md (the section runners/report.py also
@@ -47,6 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--episodes", type=int, default=256, help="episodes per cell, one per world (default 256)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation worlds (default 0)")
     parser.add_argument("--noise", type=float, help="evaluation noise (default: the rows' training noise)")
+    parser.add_argument("--nominal", action="store_true",
+                        help="play every cell from the scenario's own starts and goals (the paper's evaluation, "
+                             "eval=nominal), also for rows trained under eval=perturbed")
     parser.add_argument("--device", default="cpu", help="torch device (default cpu)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1: small networks)")
     parser.add_argument("--redraw", metavar="DIR", help="only redraw DIR's figures and report.md from its CSV")
@@ -116,7 +121,7 @@ def play_matrix(args: argparse.Namespace, argv: list[str] | None) -> int:
     try:
         matrix = run_crossplay(
             args.runs, args.partners, episodes=args.episodes, seed=args.seed, noise=args.noise,
-            device=args.device, show_progress=not args.no_progress,
+            device=args.device, show_progress=not args.no_progress, nominal=args.nominal,
         )
     except ValueError as error:  # CrossplayError: a missing policy.pt, an unknown partner, a mismatching run
         print(f"error: {error}", file=sys.stderr)

@@ -20,7 +20,8 @@ The pairing:
   (the stream a run of seed ``seed`` is evaluated on, so a run paired with its own training opponent, at the same
   seed, episodes and noise, reproduces its ``summary.json``); the world is the first row's training world (its
   domain, scenario, rewards and time limit) at the noise given, by default the rows' training noise when they all
-  agree.
+  agree; with ``nominal``, from the scenario's own starts and goals (the paper's evaluation, ``eval=nominal``) even for
+  rows trained under ``eval=perturbed``.
 
 Checks before any evaluation: every row and learned partner has a ``policy.pt`` and shares the first row's domain,
 scenario and observation (``check_partner``; noise, rewards, time limit may differ), every partner name is a
@@ -56,6 +57,7 @@ from sidewalk.opponents.policy import (
     check_partner,
     read_partner,
 )
+from sidewalk.schema import PROTOCOL_ENV_FIELDS
 
 SCRIPTED = "scripted"  # --partners shorthand: the domain's scripted opponents
 ROWS = "rows"  # --partners shorthand: every row's run folder
@@ -79,6 +81,8 @@ COLUMNS = (
     "partner_collision_rate",
     "team_success",
     "return",
+    "path_efficiency",
+    "partner_path_efficiency",
     "episodes",
     "distinct_episodes",
     "skipped",
@@ -91,6 +95,8 @@ METRICS = {  # CSV column -> key of sidewalk.evaluate's metrics in the row's ego
     "partner_collision_rate": "other/collision_rate",
     "team_success": "team/success_rate",
     "return": "ego/return",
+    "path_efficiency": "ego/path_efficiency",  # straight-line distance over the path walked, arrived episodes only
+    "partner_path_efficiency": "other/path_efficiency",
     "episodes": "episodes",
     "distinct_episodes": "distinct_episodes",  # how many different episodes the cell's worlds played
 }
@@ -301,9 +307,10 @@ def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], d
     return columns
 
 
-def evaluation_world(rows: Sequence[Player], noise: float | None) -> Any:
+def evaluation_world(rows: Sequence[Player], noise: float | None, nominal: bool = False) -> Any:
     """The env parameters every cell is played in: the first row's training world, at ``noise`` (default: the
-    rows' training noise, which must then agree)."""
+    rows' training noise, which must then agree); ``nominal``: from the scenario's own starts and goals, the paper's
+    evaluation (``eval=nominal``), whatever protocol the rows trained under."""
     if not rows:
         raise CrossplayError("give at least one run folder (a row)")
     if noise is None:
@@ -314,7 +321,10 @@ def evaluation_world(rows: Sequence[Player], noise: float | None) -> Any:
                 "give --noise to evaluate every cell at one"
             )
         noise = noises[0]
-    return dataclasses.replace(rows[0].partner.env_params, noise=float(noise))
+    world = dataclasses.replace(rows[0].partner.env_params, noise=float(noise))
+    if nominal:
+        world = dataclasses.replace(world, **{name: 0 for name in PROTOCOL_ENV_FIELDS[rows[0].partner.domain]})
+    return world
 
 
 def check_players(players: Sequence[Player], world: Any, reference: Player) -> None:
@@ -524,9 +534,10 @@ def crossplay(
     ``row_run``/``partner`` the run folders as given (a scripted partner by name), ``*_label`` their conditions'
     labels, ``*_seed`` their seeds, ``row_agent`` the agent the row played, ``partner_kind`` scripted/learned,
     ``self_pair`` (a run with itself), ``same_condition`` (two seeds of one condition, or a self-pair);
-    ``success``/``collision_rate``/``return`` of the row's agent, ``partner_success``/``partner_collision_rate``
-    over the partner's agents, ``team_success`` (every agent arrived), ``episodes``; ``skipped`` the reason a cell
-    was not played (its metrics empty). ``progress(1)`` is called after each cell.
+    ``success``/``collision_rate``/``return``/``path_efficiency`` of the row's agent,
+    ``partner_success``/``partner_collision_rate``/``partner_path_efficiency`` over the partner's agents,
+    ``team_success`` (every agent arrived), ``episodes``; ``skipped`` the reason a cell was not played (its metrics
+    empty). ``progress(1)`` is called after each cell.
 
     Call ``check_players`` first (``run_crossplay`` does).
     """
@@ -581,6 +592,7 @@ def run_crossplay(
     noise: float | None = None,
     device: str = "cpu",
     show_progress: bool = True,
+    nominal: bool = False,
 ) -> Matrix:
     """Resolve the rows (``find_runs``) and partners (``resolve_partners``), check every pairing can be played
     (``check_players``) and evaluate the matrix (``crossplay``), with a tqdm bar over the cells."""
@@ -593,7 +605,7 @@ def run_crossplay(
         raise CrossplayError("give at least one run folder (a row)")
     domain = rows[0].partner.domain
     columns = resolve_partners(partners, rows, domain)
-    world = evaluation_world(rows, noise)
+    world = evaluation_world(rows, noise, nominal)
     if any(column.heldout for column in columns) and (world.layout != "sidewalk" or _n_agents(domain, world) != 2):
         raise CrossplayError(
             f"--partners {HELDOUT} holds the two-agent sidewalk's partners; the rows play env.layout={world.layout!r} "

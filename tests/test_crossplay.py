@@ -115,6 +115,9 @@ def test_a_cell_equals_a_plain_evaluation_of_its_pairing(runs):
         assert cell["collision_rate"] == metrics["ego/collision_rate"]
         assert cell["team_success"] == metrics["team/success_rate"]
         assert cell["return"] == pytest.approx(metrics["ego/return"], abs=1e-6)
+        for column, key in (("path_efficiency", "ego/path_efficiency"),
+                            ("partner_path_efficiency", "other/path_efficiency")):
+            assert cell[column] == pytest.approx(metrics[key], nan_ok=True)
 
 
 def test_a_run_paired_with_its_training_opponent_reproduces_its_final_evaluation(runs):
@@ -123,6 +126,26 @@ def test_a_run_paired_with_its_training_opponent_reproduces_its_final_evaluation
     summary = json.loads((row / "summary.json").read_text())
     assert frame["success"].iloc[0] == summary["ego/success_rate"]
     assert frame["team_success"].iloc[0] == summary["team/success_rate"]
+
+
+def test_nominal_plays_a_perturbed_run_on_the_worlds_of_eval_nominal(runs, tmp_path):
+    """``nominal``: a run trained under ``eval=perturbed`` (the default) is played from the scenario's own starts and
+    goals, the very world a run of ``eval=nominal`` trains and is evaluated in, and a cell then equals that
+    evaluation."""
+    row = runs["dqn_dijkstra_s1"]
+    nominal_run = load_player(train(tmp_path / "nominal", *RUNS["dqn_dijkstra_s1"], *SMALL_GRID, "eval=nominal"))
+    perturbed = evaluation_world([load_player(row)], None)
+    assert perturbed.start_jitter_rows > 0 and perturbed.goal_jitter_rows > 0
+    assert evaluation_world([load_player(row)], None, nominal=True) == nominal_run.partner.env_params
+
+    matrix = run_crossplay([row], "dijkstra", episodes=EPISODES, seed=1, nominal=True, show_progress=False)
+    assert set(matrix.meta["jitter"].values()) == {0}
+    seed = 1 + EVAL_SEED_OFFSET
+    view = EgoView(DiscreteSidewalkEnv(EPISODES, seed=seed, params=nominal_run.partner.env_params), "dijkstra", ego=0)
+    metrics = evaluate(view, load_policy(row, load_experiment(row), view), seed=seed)
+    cell = matrix.frame.iloc[0]
+    assert (cell["success"], cell["team_success"]) == (metrics["ego/success_rate"], metrics["team/success_rate"])
+    assert cell["return"] == pytest.approx(metrics["ego/return"], abs=1e-6)
 
 
 def test_a_run_of_another_domain_fails_naming_it_before_any_evaluation(runs, monkeypatch):
