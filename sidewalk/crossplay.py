@@ -46,6 +46,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
+from sidewalk.config import protocol_env_params
 from sidewalk.evaluate import distinct_rows, evaluate, run_episodes
 from sidewalk.experiment import EVAL_SEED_OFFSET
 from sidewalk.opponents.base import ACTION_KEY, Opponent
@@ -57,7 +58,7 @@ from sidewalk.opponents.policy import (
     check_partner,
     read_partner,
 )
-from sidewalk.schema import PROTOCOL_ENV_FIELDS
+from sidewalk.schema import NOMINAL_PROTOCOL
 
 SCRIPTED = "scripted"  # --partners shorthand: the domain's scripted opponents
 ROWS = "rows"  # --partners shorthand: every row's run folder
@@ -323,7 +324,7 @@ def evaluation_world(rows: Sequence[Player], noise: float | None, nominal: bool 
         noise = noises[0]
     world = dataclasses.replace(rows[0].partner.env_params, noise=float(noise))
     if nominal:
-        world = dataclasses.replace(world, **{name: 0 for name in PROTOCOL_ENV_FIELDS[rows[0].partner.domain]})
+        world = protocol_env_params(NOMINAL_PROTOCOL, rows[0].partner.domain, world)
     return world
 
 
