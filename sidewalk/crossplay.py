@@ -46,6 +46,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
+from sidewalk._checks import check_keys
 from sidewalk.config import protocol_env_params
 from sidewalk.evaluate import distinct_rows, evaluate, run_episodes
 from sidewalk.experiment import EVAL_SEED_OFFSET
@@ -256,9 +257,10 @@ def heldout_column(domain: str, name: str, member: Any, known: dict[Path, Player
 def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], domain: str) -> list[Column]:
     """The columns of the matrix from ``--partners`` (a comma-separated string or a list; default
     ``scripted,rows``): a scripted opponent's name, ``scripted`` (every scripted opponent of ``domain``), ``rows``
-    (every row's run), ``heldout`` (the held-out partner population: the ad-hoc score's partners), or a run or sweep
-    folder (its learned policies). Rows' folders given again share their ``Player``. Raises ``CrossplayError`` for
-    an unknown name or an opponent of another domain."""
+    (every row's run), ``heldout`` (the held-out partner population: the ad-hoc score's partners), a run or sweep
+    folder (its learned policies), or a scripted opponent with settings, ``NAME:KEY=VALUE[:KEY=VALUE...]``
+    (``dijkstra:tie_break=progress``: the version-1 Dijkstra agent). Rows' folders given again share their
+    ``Player``. Raises ``CrossplayError`` for an unknown name or setting, or an opponent of another domain."""
     from sidewalk.opponents.base import available_opponents
     from sidewalk.registry import OPPONENTS
 
@@ -290,6 +292,8 @@ def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], d
                 add(column)
         elif item in scripted:
             add(Column(item))
+        elif ":" in item and item.split(":", 1)[0] in scripted:
+            add(_scripted_with_settings(item))
         elif item in OPPONENTS:
             raise CrossplayError(
                 f"partner {item!r} does not play the {domain} domain of the rows; "
@@ -306,6 +310,39 @@ def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], d
                 f"({', '.join(scripted)}), not {SCRIPTED!r}, {ROWS!r} or {HELDOUT!r}, and not a folder"
             )
     return columns
+
+
+def _scripted_with_settings(item: str) -> Column:
+    """The column of ``NAME:KEY=VALUE[:KEY=VALUE...]``: opponent NAME with those settings (values read as YAML
+    scalars, as on Hydra's command line), each key checked against what NAME's constructor takes."""
+    import yaml
+
+    from sidewalk.config import opponent_settings
+
+    name, *pairs = item.split(":")
+    params = {}
+    for pair in pairs:
+        key, equals, value = pair.partition("=")
+        if not equals or not key:
+            raise CrossplayError(f"partner {item!r}: {pair!r} is not KEY=VALUE (give NAME:KEY=VALUE[:KEY=VALUE...])")
+        params[key] = yaml.safe_load(value)
+    settings = opponent_settings(name)
+    if settings is not None:
+        check_keys(f"partner {item!r}", params, settings, kind="setting", error=CrossplayError)
+    return Column(item, opponent=name, params=params)
+
+
+def check_scripted_settings(columns: Sequence[Column], domain: str, world: Any) -> None:
+    """Every scripted partner given settings is built once on a one-world core of ``world``, so that a bad value
+    stops the matrix with ``CrossplayError`` naming it before any cell is played."""
+    from sidewalk.views import view_for_opponent
+
+    for column in columns:
+        if column.player is None and column.params and not column.heldout:
+            try:
+                view_for_opponent(_core_class(domain)(1, params=world), column.opponent, 0, opponent_kwargs=column.params)
+            except (ValueError, TypeError) as error:
+                raise CrossplayError(f"partner {column.name!r}: {error}") from error
 
 
 def evaluation_world(rows: Sequence[Player], noise: float | None, nominal: bool = False) -> Any:
@@ -615,6 +652,7 @@ def run_crossplay(
     learned = list(rows) + [c.player for c in columns if c.player is not None and all(c.player is not r for r in rows)]
     label_players(learned)
     check_players(learned, world, rows[0])
+    check_scripted_settings(columns, domain, world)
     with tqdm(total=len(rows) * len(columns), desc="cross-play", unit="cell", disable=not show_progress) as bar:
         frame = crossplay(rows, columns, world, episodes, seed, device, progress=bar.update)
     arena = Arena(domain, world, episodes, seed, device)

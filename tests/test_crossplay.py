@@ -177,6 +177,31 @@ def test_bad_partners_and_run_folders_are_named(runs, tmp_path):
         run_crossplay([tmp_path / "missing"], show_progress=False)
 
 
+def test_a_scripted_partner_takes_its_settings_and_a_bad_one_is_named_before_any_cell(runs, monkeypatch):
+    """``NAME:KEY=VALUE``: the version-1 Dijkstra agent's cell equals a plain evaluation with that setting; an
+    unknown key, a bad value and a setting without a value stop the matrix before its first cell."""
+    from sidewalk import crossplay
+
+    row = runs["dqn_dijkstra_s0"]
+    cell = run_crossplay([row], "dijkstra:tie_break=progress:avoid_cost=5", episodes=EPISODES, seed=3,
+                         show_progress=False).frame.iloc[0]
+    seed = 3 + EVAL_SEED_OFFSET
+    world = evaluation_world([load_player(row)], None)
+    view = EgoView(DiscreteSidewalkEnv(EPISODES, seed=seed, params=world), "dijkstra", ego=0,
+                   opponent_kwargs={"tie_break": "progress", "avoid_cost": 5})
+    metrics = evaluate(view, load_policy(row, load_experiment(row), view), seed=seed)
+    assert cell["partner"] == "dijkstra:tie_break=progress:avoid_cost=5"
+    assert (cell["success"], cell["partner_success"]) == (metrics["ego/success_rate"], metrics["other/success_rate"])
+    assert cell["return"] == pytest.approx(metrics["ego/return"], abs=1e-6)
+
+    monkeypatch.setattr(crossplay, "crossplay", lambda *args, **kwargs: pytest.fail("a cell was played"))
+    for spec, message in (("dijkstra:tie_brake=progress", "unknown setting 'tie_brake' \\(did you mean 'tie_break'"),
+                          ("dijkstra:tie_break=sideways", "tie_break='sideways' is not valid; valid: 'random'"),
+                          ("dijkstra:tie_break", "'tie_break' is not KEY=VALUE")):
+        with pytest.raises(CrossplayError, match=message):
+            run_crossplay([row], spec, episodes=EPISODES, show_progress=False)
+
+
 def test_the_runner_writes_the_same_csv_for_the_same_seed_with_figures_and_report(runs, tmp_path, runner):
     crossplay = runner("crossplay")
     rows = [str(runs["dqn_dijkstra_s0"]), str(runs["dqn_dijkstra_s1"])]
