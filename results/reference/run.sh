@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The exact commands that produced results/reference/ (reference.json gives the commit; report.md the date and each
-# job's wall-clock on the 2-core machine it ran on). Here while its runs are made; it becomes results/reference/run.sh.
+# job's wall-clock on the 2-core machine it ran on).
 #
 #   REFERENCE_TREE=../ref10 results/reference/run.sh     # into results/sweeps/reference/seeds0-4 and seeds5-9
 #   REFERENCE_TREE=../ref10 REFERENCE_DIR=/tmp/ref REFERENCE_OUT=/tmp/ref/report REFERENCE_SCALE=quick \
