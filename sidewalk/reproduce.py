@@ -16,9 +16,11 @@ it) and logs to ``<that folder>.log``. SIGTERM or Ctrl-C stops the running jobs 
 checkpoint, and the pool prints the command that continues it (``--out OUT``). Run the same command again: without
 ``--out`` it continues the newest unfinished reproduction of the same arguments (``OUT/reproduce.json`` records them),
 so finished jobs are skipped, jobs with a checkpoint resume (``resume=true``), jobs stopped before their first
-checkpoint start over in their folder and jobs never started start. ``OUT/jobs.csv`` records each job's start, end,
-wall-clock and exit status; the report (``OUT/report/report.md``) is written last. Exit status: 0 when every job and
-the report succeeded, 1 otherwise, 2 for bad arguments.
+checkpoint start over in their folder and jobs never started start. A job's line says how it ended as that rerun
+will read its folder: ``done`` (its runs finished, even if the stop then reached its process), ``interrupted`` (with
+the command that continues it) or ``FAILED`` (with its log). ``OUT/jobs.csv`` records each job's start, end,
+wall-clock, exit status and outcome; the report (``OUT/report/report.md``) is written last. Exit status: 0 when every
+job and the report succeeded, 1 otherwise, 2 for bad arguments.
 """
 
 from __future__ import annotations
@@ -47,6 +49,9 @@ SCALES = ("full", "quick")
 JOBS_FILE = "jobs.csv"
 ARGUMENTS_FILE = "reproduce.json"  # what an output root reproduces (scale, presets, overrides) and when it finished
 DEFAULT_PARENT = Path("results/sweeps")  # the default output roots: reproduce_<scale>_<time> in here
+# Signals that stop a job rather than fail it: the pool's own SIGTERM, Ctrl-C, a closed terminal, SIGUSR1 (a scheduler's
+# notice). SIGKILL is not among them: it is how an out-of-memory killer ends a job, a failure the rerun would repeat.
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGUSR1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,6 +130,31 @@ def job_state(folder: Path, job: Job) -> str:
     if all((replica / SUMMARY).exists() for replica in replica_dirs):
         return "done"
     return "stale"
+
+
+def job_outcome(state: str, code: int) -> str:
+    """How a job ended, from its folder's ``job_state`` once its process exited with ``code`` (the state a rerun
+    reads), not from the exit code alone: ``done`` (it finished, even if a signal then killed its process on the way
+    out), ``interrupted`` (a signal stopped it first: the rerun continues it), or ``failed``."""
+    if state == "done":
+        return "done"
+    if code > 128 or (code < 0 and -code in STOP_SIGNALS):  # 128 + n: main.py stopped by signal n; -n: killed by it
+        return "interrupted"
+    return "failed"
+
+
+def describe(outcome: str, state: str, code: int, log: Path, continue_with: str, wall_s: float) -> str:
+    """A job's line once its process ended: its outcome, and for one that did not finish, what to do."""
+    if outcome == "done":
+        return f"done in {wall_s:.0f} s"
+    if outcome == "interrupted":
+        then = "resumes from its checkpoint" if state == "resume" else "starts again (no checkpoint yet)"
+        return f"interrupted after {wall_s:.0f} s ({_exit(code)}); it {then} when you continue with:\n  {continue_with}"
+    return f"FAILED ({_exit(code)}; see {log}) after {wall_s:.0f} s"
+
+
+def _exit(code: int) -> str:
+    return f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit {code}"
 
 
 def continue_command(args: argparse.Namespace, root: Path) -> str:
@@ -224,7 +254,7 @@ class Pool:
                "exit": 0}
         if state == "done":
             self._say(f"{name}: already done")
-            self._record({**row, "ended": row["started"]})
+            self._record({**row, "ended": row["started"], "outcome": "done"})
             return
         folder.parent.mkdir(parents=True, exist_ok=True)
         # resume=true continues a job's folder: from its checkpoint, or (stopped before its first) from the start
@@ -246,10 +276,10 @@ class Pool:
             with self.lock:
                 del self.running[job.folder]
         wall = time.perf_counter() - started
-        outcome = "done" if code == 0 else f"stopped (exit {code}; run again to resume)" if code > 128 else \
-            f"FAILED (exit {code}; see {log})"
-        self._say(f"{name}: {outcome} in {wall:.0f} s")
-        self._record({**row, "ended": _now(), "wall_s": round(wall, 1), "exit": code})
+        after = job_state(folder, job)  # what the rerun will read, whatever the exit code says
+        ended = job_outcome(after, code)
+        self._say(f"{name}: {describe(ended, after, code, log, self.continue_with, wall)}")
+        self._record({**row, "ended": _now(), "wall_s": round(wall, 1), "exit": code, "outcome": ended})
 
     def _record(self, row: dict[str, Any]) -> None:
         import pandas as pd
@@ -321,12 +351,13 @@ def main(argv: Sequence[str] | None = None) -> int:
           file=sys.stderr, flush=True)
     started = time.perf_counter()
     rows = Pool(root, args.processes, continue_command(args, root)).run(queue)
-    failed = [row["job"] for row in rows if row["exit"] not in (0,)]
+    failed = [row["job"] for row in rows if row["outcome"] == "failed"]
+    interrupted = sum(row["outcome"] == "interrupted" for row in rows)
     unfinished = len(queue) - len(rows)
     print(f"reproduce: jobs took {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
-    if unfinished or any(row["exit"] > 128 for row in rows):
-        print(f"reproduce: stopped with {unfinished} job(s) not started; continue with (or run the same command "
-              f"again):\n  {continue_command(args, root)}", file=sys.stderr)
+    if unfinished or interrupted:
+        print(f"reproduce: stopped with {interrupted} job(s) interrupted and {unfinished} not started; continue with "
+              f"(or run the same command again):\n  {continue_command(args, root)}", file=sys.stderr)
         return 1
     report = subprocess.run([sys.executable, str(RUNNERS_DIR / "report.py"), str(root), "--out", str(root / "report")],
                             check=False)

@@ -423,28 +423,69 @@ def save_checkpoint(run_dir: Path, state: dict[str, Any]) -> None:
 def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> dict[str, Any]:
     """The newest readable checkpoint of ``run_dir``: ``checkpoint.pt``, or, when that is missing, truncated or
     corrupt, ``checkpoint.prev.pt`` (with a warning naming the bad file and the error). A checkpoint that holds
-    more than a checkpoint does (``UnsafeFile``) is refused outright: it is no torn write, and none of it runs."""
-    problems, unreadable = [], []
-    for name in (CHECKPOINT, PREVIOUS_CHECKPOINT):
-        path = run_dir / name
-        if not path.exists():
-            problems.append(f"{name}: missing")
-            continue
+    more than a checkpoint does (``UnsafeFile``) is refused outright: it is no torn write, and none of it runs.
+    Raises ``RunFolderError`` saying what to do when neither reads back."""
+    name, state, unreadable = _newest_readable(run_dir, lambda path: read_torch_file(path, map_location), warn=True)
+    if unreadable:
+        append_history(run_dir, "checkpoint_fallback", unreadable=unreadable, used=name)
+    return state
+
+
+def check_checkpoint(run_dir: Path) -> None:
+    """Before any compute: raise ``load_checkpoint``'s ``RunFolderError`` unless one checkpoint generation of
+    ``run_dir`` reads back. Cheap (the tensors are mapped, not read) and silent (a fallback warns when it loads)."""
+    _newest_readable(run_dir, _map_torch_file, warn=False)
+
+
+def _map_torch_file(path: Path) -> Any:
+    try:
+        return read_torch_file(path, mmap=True)
+    except UnsafeFile:
+        raise
+    except UnreadableFile:
+        return read_torch_file(path)  # mmap maps only the zip format: an older file may still read, or says why not
+
+
+def _newest_readable(
+    run_dir: Path, read: Callable[[Path], Any], warn: bool
+) -> tuple[str, Any, list[str]]:
+    """The first generation that ``read`` reads back, what it read, and the generations before it that it could
+    not; ``RunFolderError`` (one line: why, and what to do) when none reads."""
+    present = [name for name in (CHECKPOINT, PREVIOUS_CHECKPOINT) if (run_dir / name).exists()]
+    reasons: dict[str, str] = {}
+    for index, name in enumerate(present):
         try:
-            state = read_torch_file(path, map_location=map_location)
+            return name, read(run_dir / name), [f"{bad}: unreadable ({reason})" for bad, reason in reasons.items()]
         except UnsafeFile:
             raise
         except UnreadableFile as error:
-            problems.append(f"{name}: unreadable ({error.detail})")
-            unreadable.append(problems[-1])
-            print(f"warning: {error}; trying the previous checkpoint", file=sys.stderr)
-            continue
-        if unreadable:
-            append_history(run_dir, "checkpoint_fallback", unreadable=unreadable, used=name)
-        return state
-    raise RunFolderError(
-        f"resume=true but {run_dir} has no readable checkpoint ({'; '.join(problems)}).{_finished_hint(run_dir)}"
-    )
+            reasons[name] = _first_sentence(error.detail)  # torch's miniz text runs on for three sentences
+        if warn and index + 1 < len(present):
+            print(f"warning: {run_dir / name} is unreadable ({reasons[name]}); trying the previous checkpoint, "
+                  f"{present[index + 1]}", file=sys.stderr)
+    raise RunFolderError(_no_readable_checkpoint(run_dir, reasons))
+
+
+def _first_sentence(text: str) -> str:
+    lines = text.strip().splitlines()
+    return lines[0].split(". ", 1)[0].rstrip(".") if lines else text
+
+
+def _no_readable_checkpoint(run_dir: Path, reasons: dict[str, str]) -> str:
+    """Why ``run_dir`` cannot resume, and the two ways on: train again from the start there, or in a new folder."""
+    import shlex
+
+    if not reasons:
+        return f"resume=true but {run_dir} holds no checkpoint"
+    if len(reasons) > 1 and len(set(reasons.values())) == 1:
+        why = f"{' and '.join(reasons)} are unreadable ({next(iter(reasons.values()))})"
+    else:
+        why = ", ".join(f"{name} is unreadable ({reasons[name]})" if name in reasons else f"{name} is missing"
+                        for name in (CHECKPOINT, PREVIOUS_CHECKPOINT))
+    remove = shlex.join(["rm", *(str(run_dir / name) for name in reasons)])
+    return (f"resume=true but {run_dir} has no readable checkpoint: {why}. To train the run again from the start in "
+            f"this folder, delete its checkpoints ({remove}) and run the same command again; or start afresh in a new "
+            "folder: the same command with hydra.run.dir=<a new folder> and without resume=true")
 
 
 def strict_json(value: Any) -> Any:

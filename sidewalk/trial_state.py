@@ -30,6 +30,8 @@ from sidewalk.run_folder import (
     append_history,
     atomic_write,
     check,
+    check_checkpoint,
+    has_checkpoint,
     load_checkpoint,
     record_start,
     replica_dir,
@@ -60,7 +62,7 @@ def seed_dirs(run_dir: Path, experiment: Experiment) -> list[Path]:
 def check_folders(run_dir: Path, experiment: Experiment, config: dict[str, Any], in_sweep: bool = False) -> str:
     """Before any compute: every folder of the trial can start (or, ``resume=true``, continue) it; raises
     ``RunFolderError`` naming the folder and why. Several seeds: the group's folder holds the checkpoint, and each
-    seed's folder must be new, or (resuming) one of this group's.
+    seed's folder must be new, or (resuming) one of this group's, and a checkpoint, where there is one, must read back.
 
     Returns what the command does: ``"start"``; ``"resume"`` (from the checkpoint, or from the start when the run
     stopped before its first); or ``"finished"`` (``resume=true`` on a run that finished at this budget: nothing to
@@ -79,8 +81,11 @@ def check_folders(run_dir: Path, experiment: Experiment, config: dict[str, Any],
                 raise RunFolderError(f"resume=true but {folder} is not a run folder of this group")
     if not resume:
         return "start"
-    finished = grown is None and all((folder / SUMMARY).exists() for folder in folders)
-    return "finished" if finished else "resume"
+    if grown is None and all((folder / SUMMARY).exists() for folder in folders):
+        return "finished"
+    if has_checkpoint(state):
+        check_checkpoint(state)  # both generations torn: refused here, before the envs and learners are built
+    return "resume"
 
 
 def read_summaries(run_dir: Path, experiment: Experiment) -> list[dict[str, Any]]:

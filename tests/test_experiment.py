@@ -171,8 +171,8 @@ def test_a_corrupt_checkpoint_falls_back_to_the_previous_one(tmp_path, finished_
     for name in ("checkpoint.pt", "checkpoint.prev.pt"):
         (both / name).write_bytes(b"not a checkpoint")
     result = main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={both}", check=False)
-    assert result.returncode == 1 and "no readable checkpoint" in result.stderr
-    assert "checkpoint.prev.pt: unreadable" in result.stderr
+    assert result.returncode == 2 and "no readable checkpoint" in result.stderr  # refused before any compute
+    assert "checkpoint.pt and checkpoint.prev.pt are unreadable" in result.stderr
 
 
 def test_a_finished_default_run_folder_is_small(tmp_path):

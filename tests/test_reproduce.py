@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import sys
 import time
 import types
 
@@ -84,7 +85,7 @@ def test_the_same_command_continues_an_unfinished_reproduction_and_a_stopped_poo
 
     def stopped_in_the_first_job(self, queue):
         roots.append(self.root)
-        return [{"job": queue[0].folder, "exit": 130}]
+        return [{"job": queue[0].folder, "exit": 130, "outcome": "interrupted"}]
 
     monkeypatch.setattr(Pool, "run", stopped_in_the_first_job)
     argv = ["quick", "--presets", "fig8", "eval_episodes=8", "--processes", "1"]
@@ -93,3 +94,37 @@ def test_the_same_command_continues_an_unfinished_reproduction_and_a_stopped_poo
     assert main(argv) == 1
     assert roots[1] == roots[0]  # the same command went on where the stopped one was, not into a new folder
     assert main([*argv, "eval_every=2"]) == 1 and roots[2] != roots[0]  # other arguments: another reproduction
+
+
+# What a job's process does, in place of runners/main.py: its folder's files, then how it ends.
+FINISHED_THEN_KILLED = "(folder / 'summary.json').write_text('{}'); print('sweep done'); os.kill(os.getpid(), 15)"
+STOPPED_AT_A_CHECKPOINT = "(folder / 'checkpoint.pt').write_bytes(b''); sys.exit(128 + 15)"
+KILLED_BEFORE_ITS_FIRST_CHECKPOINT = "os.kill(os.getpid(), 15)"
+BROKEN = "sys.exit(1)"
+
+
+@pytest.mark.parametrize("ends, outcome, said", [
+    (FINISHED_THEN_KILLED, "done", "done in"),  # the stop reached it on its way out: its runs are finished all the same
+    (STOPPED_AT_A_CHECKPOINT, "interrupted", "(exit 143); it resumes from its checkpoint when you continue with:"),
+    (KILLED_BEFORE_ITS_FIRST_CHECKPOINT, "interrupted", "(killed by SIGTERM); it starts again (no checkpoint yet)"),
+    (BROKEN, "failed", "FAILED (exit 1; see "),
+], ids=["finished then killed", "stopped at a checkpoint", "killed before its first checkpoint", "failed"])
+def test_a_jobs_line_says_how_it_ended_as_its_folder_says_not_its_exit_code_alone(tmp_path, monkeypatch, capsys,
+                                                                                  ends, outcome, said):
+    (job,) = [job for job in jobs(["fig8"]) if job.folder == "fig8/1_reward=implicit"]
+    job = dataclasses.replace(job, replicas=1)
+    folder = tmp_path / job.folder
+    script = f"import os, sys, pathlib; folder = pathlib.Path({str(folder)!r}); folder.mkdir(); {ends}"
+    monkeypatch.setattr(reproduce, "command", lambda job, root, resume: [sys.executable, "-c", script])
+    continue_with = f"runners/reproduce.sh quick --out {tmp_path}"
+    pool = Pool(tmp_path, 1, continue_with)
+    pool._run_job(job, "[1/1] fig8")
+    (line,) = [line for line in capsys.readouterr().err.split("reproduce: ") if line.startswith("[1/1] fig8: ") and
+               "started" not in line]
+    assert said in line and (continue_with in line) == (outcome == "interrupted")
+    assert pool.rows[-1]["outcome"] == outcome
+    # The rerun reads the same folder: it skips what was reported done, and continues what was not.
+    assert (job_state(folder, job) == "done") == (outcome == "done")
+    if outcome == "done":
+        pool._run_job(job, "[1/1] fig8")
+        assert "[1/1] fig8: already done" in capsys.readouterr().err
