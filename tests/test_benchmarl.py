@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import importlib.util
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -112,18 +113,36 @@ def test_benchmarl_trains_two_iterations_on_a_sidewalk_task(algorithm, task, mod
     assert {"collection_agents_info_reached_goal", "collection_agents_info_cost"} <= logged, sorted(logged)
 
 
-def test_benchmarl_command_line_runs_a_sidewalk_task(tmp_path):
+GUIDE = Path(__file__).resolve().parent.parent / "docs" / "guide" / "benchmarl.md"
+FIRST_COMMAND = "python -m sidewalk.interop.benchmarl algorithm=mappo task=sidewalk/door_continuous "
+
+
+def guide_command() -> list[str]:
+    """The guide's first command, as a user copies it."""
+    line = next(line for line in GUIDE.read_text().splitlines() if line.startswith(FIRST_COMMAND))
+    return shlex.split(line.partition("#")[0])
+
+
+@pytest.mark.parametrize(("algorithm", "task", "budget"), [
+    ("mappo", "door_continuous", ["experiment.on_policy_n_minibatch_iters=1"]),  # 1 of its 40 minibatch steps
+    ("iql", "sidewalk_discrete", ["experiment.off_policy_n_optimizer_steps=1"]),  # 1 of its 64 optimiser steps
+], ids=["on_policy", "off_policy"])
+def test_the_guide_s_command_starts_each_kind_of_tuned_pair(algorithm, task, budget, tmp_path):
+    # As written but for the pair and a small budget (one batch, one optimiser step; nothing of the batch or the
+    # evaluation interval): a tuned file BenchMARL refuses at start fails here.
+    command = guide_command()
+    command[command.index("algorithm=mappo")] = f"algorithm={algorithm}"
+    command[command.index("task=sidewalk/door_continuous")] = f"task=sidewalk/{task}"
+    assert (task, algorithm) in tuned_pairs()
     out = subprocess.run(
-        [sys.executable, "-m", "sidewalk.interop.benchmarl", "algorithm=mappo", "task=sidewalk/zipper_continuous",
-         "experiment.max_n_iters=1", "experiment.loggers=[csv]", "experiment.render=false",
-         "experiment.evaluation=false", "experiment.on_policy_collected_frames_per_batch=100",
-         "experiment.on_policy_minibatch_size=50", "experiment.on_policy_n_minibatch_iters=1",
-         f"experiment.save_folder={tmp_path}", f"hydra.run.dir={tmp_path / 'hydra'}"],
-        check=False, capture_output=True, text=True, timeout=300,
+        [sys.executable, *command[1:], "experiment.max_n_frames=2048", *budget], cwd=tmp_path, check=False,
+        capture_output=True, text=True, timeout=300,
     )
     assert out.returncode == 0, out.stderr[-3000:]
-    rows = list(csv.reader(next(tmp_path.rglob("collection_agents_info_reached_goal.csv")).open()))
-    assert len(rows) == 1  # one iteration logged
+    rows = list(csv.reader(next(tmp_path.rglob("counters_total_frames.csv")).open()))
+    assert [float(frames) for _, frames in rows] == [2048]  # one iteration of the tuned batch
+    assert next(tmp_path.rglob("eval_reward_episode_reward_mean.csv")).read_text()  # BenchMARL evaluated it
+    assert len(list(csv.reader(next(tmp_path.rglob("collection_agents_info_reached_goal.csv")).open()))) == 1
 
 
 def test_the_comparison_table_writes_a_row_per_run_and_skips_finished_runs(tmp_path, monkeypatch):
@@ -235,6 +254,8 @@ def test_tuned_settings_ship_for_the_issue_s_pairs():
 
 @pytest.mark.parametrize(("task", "algorithm"), tuned_pairs())
 def test_the_tuned_settings_load_and_apply_in_python_and_on_the_command_line(task, algorithm):
+    from benchmarl.algorithms import algorithm_config_registry
+    from benchmarl.hydra_config import load_experiment_config_from_hydra
     from benchmarl.utils import _class_from_name
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
@@ -264,6 +285,11 @@ def test_the_tuned_settings_load_and_apply_in_python_and_on_the_command_line(tas
             assert (_class_from_name(default) if key.endswith("class") else default) == getattr(
                 defaults[fields[section]], key)
     assert changed >= 5  # the tuned file changes BenchMARL's defaults, not restates them
+    # BenchMARL's own start checks (the evaluation interval a multiple of the batch), and an evaluation at the end.
+    on_policy = algorithm_config_registry[algorithm].on_policy()
+    for config in (configs["config"], load_experiment_config_from_hydra(cfg.experiment)):
+        config.validate(on_policy)
+        assert config.get_max_n_frames(on_policy) % config.evaluation_interval == 0, (task, algorithm)
 
 
 def test_a_misspelt_tuned_setting_is_an_error_naming_the_valid_ones(tmp_path, monkeypatch):
