@@ -82,6 +82,29 @@ def datasets_root(data_path: str | os.PathLike | None) -> Iterator[Path]:
             os.environ["MINARI_DATASETS_PATH"] = before
 
 
+def dataset_ids(root: str | os.PathLike) -> list[str]:
+    """The ids of the datasets under the datasets root ``root`` (``<root>/<namespace>/<name-vN>/data``), sorted."""
+    root = Path(root)
+    found = (folder.parent.relative_to(root).as_posix() for folder in root.glob("**/data") if folder.is_dir())
+    return sorted(dataset_id for dataset_id in found if DATASET_ID_RE.match(dataset_id))
+
+
+def check_dataset(dataset_id: Any, data_path: str | os.PathLike | None = None) -> Path:
+    """The folder of dataset ``dataset_id`` under the datasets root ``data_path`` (else Minari's:
+    ``MINARI_DATASETS_PATH`` or ``~/.minari/datasets``), without loading it; ``ValueError`` for an id not of Minari's
+    form, ``FileNotFoundError`` naming the root, the datasets there and both ways to point at another root."""
+    check_dataset_id(dataset_id)
+    with datasets_root(data_path) as root:
+        if (root / dataset_id / "data").is_dir():
+            return root / dataset_id
+        there = dataset_ids(root) if root.is_dir() else []
+    # A dataset recorded under data_path= is found only where one of the two points at its root (the guide's case).
+    raise FileNotFoundError(
+        f"no dataset {dataset_id!r} under {root} ({'datasets there: ' + ', '.join(there) if there else 'none there'});"
+        " give its root as opponent.params.data_path=DIR (data_path= in Python) or MINARI_DATASETS_PATH=DIR"
+    )
+
+
 def _tree_map(fn: Any, tree: Any, other: Any) -> Any:
     """``fn`` over the leaves of ``tree`` (dicts, tuples and lists are nodes; None stays None), with the matching
     part of ``other``: the little of ``jax.tree_util.tree_map`` that Minari's episode buffers use."""
@@ -428,10 +451,8 @@ def load(dataset_id: str, *, data_path: str | os.PathLike | None = None) -> mina
     version, sidewalk version, env config values whose defaults changed, keys gone or new)."""
     import minari
 
-    check_dataset_id(dataset_id)
-    with datasets_root(data_path) as root:
-        if not (root / dataset_id / "data").is_dir():
-            raise FileNotFoundError(f"no dataset {dataset_id!r} under {root}")
+    check_dataset(dataset_id, data_path)
+    with datasets_root(data_path):
         dataset = minari.load_dataset(dataset_id)
     pins = pins_of(dataset)
     try:

@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shlex
+import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import gymnasium
 import numpy as np
@@ -139,3 +144,41 @@ def test_data_path_selects_the_root(tmp_path, monkeypatch):
     assert datasets.load("people/walks-v2", data_path=here).total_episodes == 1
     assert not (tmp_path / "home").exists()
     assert "MINARI_DATASETS_PATH" not in __import__("os").environ
+
+
+def test_a_missing_dataset_is_one_line_naming_the_root_what_is_there_and_both_ways_to_another(root):
+    with pytest.raises(FileNotFoundError) as missing:
+        datasets.check_dataset("sidewalk/grid-walks-v0")
+    message = str(missing.value)
+    assert f"no dataset 'sidewalk/grid-walks-v0' under {root} (none there)" in message and "\n" not in message
+    assert "opponent.params.data_path=DIR" in message and "MINARI_DATASETS_PATH=DIR" in message
+    recorded_grid(root)
+    recorded_grid(root, "people/alice/walks-v3")
+    with pytest.raises(FileNotFoundError, match=r"\(datasets there: people/alice/walks-v3, sidewalk/grid-v0\)"):
+        datasets.load("sidewalk/grid-walks-v0")  # load's own check is this one
+    assert datasets.check_dataset("sidewalk/grid-v0") == root / "sidewalk" / "grid-v0"
+    assert datasets.check_dataset("sidewalk/grid-v0", data_path=root) == root / "sidewalk" / "grid-v0"
+    with pytest.raises(ValueError, match="namespace/name-vN"):
+        datasets.check_dataset("grid-v0")
+
+
+ROOT = Path(__file__).resolve().parents[1]
+GUIDE = ROOT / "docs" / "guide" / "datasets.md"
+
+
+def test_the_guide_s_proxy_command_finds_what_its_recording_snippet_saved(tmp_path, monkeypatch):
+    from sidewalk.compose import compose
+
+    monkeypatch.chdir(tmp_path)  # where a user runs both, as the guide's root is relative
+    monkeypatch.delenv("MINARI_DATASETS_PATH", raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))  # Minari's default root: not the user's
+    text = GUIDE.read_text()
+    recording = text.split("```python\n", 1)[1].split("```", 1)[0]
+    subprocess.run([sys.executable, "-c", recording], cwd=tmp_path, check=True)  # in the environment set above
+    line = next(line for line in text.splitlines() if line.startswith("python runners/main.py opponent=proxy"))
+    params = compose(shlex.split(line)[2:]).opponent.params
+    assert datasets.check_dataset(params.dataset, params.data_path) == Path("datasets").resolve() / params.dataset
+    if shutil.which("git") and (ROOT / ".git").exists():  # a recording under the clone must not make runs -dirty
+        ignored = subprocess.run(["git", "check-ignore", "-q", f"datasets/{params.dataset}/data/main_data.hdf5"],
+                                 cwd=ROOT, check=False)
+        assert ignored.returncode == 0, "datasets/ is not in .gitignore"

@@ -140,8 +140,11 @@ def test_a_dataset_of_another_world_is_refused(root):
                       data_path=str(root))
     with pytest.raises(ProxyMismatch, match="opponent.params.dataset"):
         ProxyOpponent(DiscreteSidewalkEnv(1, seed=0))
-    with pytest.raises(FileNotFoundError, match="walks/none-v0"):
+    with pytest.raises(FileNotFoundError, match="walks/none-v0") as missing:
         ProxyOpponent(DiscreteSidewalkEnv(1, seed=0), dataset="walks/none-v0", data_path=str(root))
+    # What is there, and where the proxy's root is set: the guide's recording is not under Minari's default.
+    assert "datasets there: walks/continuous-heldout-v0, walks/continuous-train-v0," in str(missing.value)
+    assert "opponent.params.data_path=DIR" in str(missing.value) and "MINARI_DATASETS_PATH=DIR" in str(missing.value)
 
 
 def test_the_proxy_is_a_partner_of_the_gymnasium_face(root):

@@ -98,7 +98,7 @@ def demonstrations(dataset: Any) -> tuple[torch.Tensor, torch.Tensor, np.ndarray
             np.concatenate(episode))
 
 
-def check_dataset(pins: dict[str, Any], dataset_id: str, env: SidewalkEnvBase) -> int:
+def check_fits(pins: dict[str, Any], dataset_id: str, env: SidewalkEnvBase) -> int:
     """The agent recorded in a dataset (``pins``: ``sidewalk.datasets.pins_of``) once a proxy can play from it in
     ``env``: same domain and the same env settings but those that may differ (``MAY_DIFFER``); else ``ProxyMismatch``."""
     config, domain = pins["env_config"], env_domain(env)
@@ -167,12 +167,12 @@ def action_bounds(env: SidewalkEnvBase) -> torch.Tensor | None:
 def cloned_policy(dataset_id: str, env: SidewalkEnvBase, data_path: str | None = None,
                   settings: CloneSettings = CloneSettings(), show_progress: bool = True) -> tuple[Clone, int]:
     """The clone of ``dataset_id``'s recorded agent (from the cache beside the dataset, else trained and cached)
-    and that agent's index, once the dataset fits ``env`` (``check_dataset``)."""
+    and that agent's index, once the dataset fits ``env`` (``check_fits``)."""
     if not isinstance(dataset_id, str) or not dataset_id:
         raise ProxyMismatch("opponent=proxy needs opponent.params.dataset=NAMESPACE/NAME-vN: a dataset recorded by "
                             "sidewalk.datasets (sidewalk-play records one)")
     dataset = load(dataset_id, data_path=data_path)
-    recorded = check_dataset(pins_of(dataset), dataset_id, env)
+    recorded = check_fits(pins_of(dataset), dataset_id, env)
     bounds = action_bounds(env)
     file = Path(dataset.storage.data_path).parent / WEIGHTS_FOLDER / f"{cache_key(dataset, settings)}.pt"
     observations, actions, _ = demonstrations(dataset)
