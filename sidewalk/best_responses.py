@@ -13,6 +13,7 @@ an interrupted job is continued by running it again.
 
 from __future__ import annotations
 
+import logging
 import shlex
 from collections.abc import Sequence
 from pathlib import Path
@@ -24,8 +25,10 @@ import pandas as pd
 from sidewalk._checks import check_choice, check_int
 from sidewalk.crossplay import evaluate_cell, evaluation_world, heldout_column, load_player
 from sidewalk.opponents.population import Member, population
-from sidewalk.report.crossplay import BEST_RESPONSES_CSV
+from sidewalk.report.crossplay import BEST_RESPONSES_CSV, best_response_warning
 from sidewalk.stats import interval_estimate
+
+log = logging.getLogger(__name__)
 
 # The learner each domain's reference trains against a scripted partner, with that reference's settings:
 # the continuous population learner (docs/guide/adhoc.md) and the grid's default learner (conf/algo/dqn.yaml).
@@ -33,8 +36,16 @@ RECIPES: dict[str, tuple[str, ...]] = {
     "continuous": ("env=continuous", "algo=ppo", "iterations=200", "eval_every=20", "reward.c_progress=0.1"),
     "discrete": ("env=discrete", "algo=dqn"),
 }
-BEST_RESPONSE_COLUMNS = ("member", "command", "budget", "seeds", "success", "low", "high", "note", "episodes",
-                         "distinct_low", "distinct_high", "run_folders")
+BEST_RESPONSE_COLUMNS = ("member", "command", "budget", "reference_budget", "seeds", "success", "low", "high", "note",
+                         "episodes", "distinct_low", "distinct_high", "run_folders")
+
+
+def reference_budget(domain: str) -> int:
+    """The iterations ``RECIPES[domain]`` trains for: the budget a best response is meant to have (``iterations`` or
+    ``--override`` may give it less, and the report then warns that BR-Prox rests on it)."""
+    from sidewalk.compose import compose
+
+    return int(compose(list(RECIPES[domain]))["iterations"])
 
 
 def member_overrides(domain: str, member: Member) -> list[str]:
@@ -156,7 +167,8 @@ def train_best_responses(
     """Train and evaluate the best response to each held-out member of ``domain`` (``members``, default all) that
     ``out/best_responses.csv`` does not hold yet, writing each row as it is done; return the CSV's path. ``extra``:
     config overrides added to ``RECIPES[domain]``'s. Unknown members, domains or counts raise ``ValueError`` before
-    anything is trained; a tqdm bar counts the members."""
+    anything is trained; a tqdm bar counts the members. Best responses trained now that BR-Prox should not rest on
+    (``best_response_warning``: below the reference budget, or weak with their partner) are logged as a warning."""
     from tqdm import tqdm
 
     table = check_members(domain, members)
@@ -165,14 +177,20 @@ def train_best_responses(
     if iterations is not None:
         check_int("iterations", iterations, 1)
     done = set(read_cache(out)["member"].astype(str))
+    reference, trained = reference_budget(domain), []
     with tqdm(total=len(table), desc="best responses", unit="member", disable=not show_progress) as bar:
         for name in table:
             bar.set_postfix_str(name + (" (cached)" if name in done else ""))
             if name not in done:
                 folders, command = train_one(domain, name, Path(runs_dir), seeds, iterations, extra)
                 row = evaluate_best_response(domain, name, folders, episodes, seed)
-                write_cache(out, [{**row, "command": command, "budget": _iterations(folders[0])}])
+                write_cache(out, [{**row, "command": command, "budget": _iterations(folders[0]),
+                                   "reference_budget": reference}])
+                trained.append(name)
             bar.update(1)
+    warning = best_response_warning(read_cache(out), trained)
+    if warning:
+        log.warning(warning)
     return Path(out) / BEST_RESPONSES_CSV
 
 
@@ -203,7 +221,8 @@ def best_responses_from_runs(
                              "that match no held-out partner")
         found.setdefault((domain, member), []).append(Path(folder))
     return [{**evaluate_best_response(domain, member, folders, episodes, seed), "command": "",
-             "budget": _iterations(folders[0])} for (domain, member), folders in found.items()]
+             "budget": _iterations(folders[0]), "reference_budget": reference_budget(domain)}
+            for (domain, member), folders in found.items()]
 
 
 def heldout_member(flat: dict[str, Any], members: dict[str, Member]) -> str | None:

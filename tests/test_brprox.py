@@ -18,7 +18,13 @@ from sidewalk.compose import compose
 from sidewalk.config import validate
 from sidewalk.experiment import Trial
 from sidewalk.opponents.population import population
-from sidewalk.report.crossplay import BEST_RESPONSES_CSV, adhoc_table, br_prox_scores, read_best_responses
+from sidewalk.report.crossplay import (
+    BEST_RESPONSES_CSV,
+    adhoc_table,
+    best_response_table,
+    br_prox_scores,
+    read_best_responses,
+)
 
 TINY = ["num_envs=4", "iterations=2", "eval_every=2", "eval_episodes=8", "logger=none", "plots=false",
         "algo.learning_starts=0", "algo.frames_per_batch=16", "algo.batch_size=16"]
@@ -101,13 +107,15 @@ def test_the_cache_reads_back_and_a_new_row_replaces_the_members_old_one(tmp_pat
     assert read_best_responses(tmp_path) == {"salsa": 0.25, "keep_left": 0.75}  # what the report reads
 
 
-def test_a_tiny_best_response_is_trained_evaluated_cached_and_not_trained_again(tmp_path):
+def test_a_tiny_best_response_is_trained_evaluated_cached_and_not_trained_again(tmp_path, caplog):
     tiny = ["num_envs=4", "eval_every=2", "eval_episodes=8", "logger=none", "algo.learning_starts=0",
             "algo.frames_per_batch=16", "algo.batch_size=16", "env.observation=vector"]
     path = train_best_responses("discrete", tmp_path / "matrix", tmp_path / "runs", ["keep_left"], iterations=2,
                                 episodes=8, show_progress=False, extra=tiny)
     row = read_cache(tmp_path / "matrix").iloc[0]
     assert path.name == BEST_RESPONSES_CSV and row["member"] == "keep_left" and row["budget"] == 2
+    assert row["reference_budget"] == 300  # DQN's own budget, conf/algo/dqn.yaml
+    assert "`keep_left` (2 iterations, reference 300;" in caplog.text  # said as it is trained, not only in the CSV
     assert 0 <= row["success"] <= 1 and row["episodes"] == 8 and 1 <= row["distinct_low"] <= 8
     assert "opponent.params.style=keep_left" in row["command"] and "algo=dqn" in row["command"]
     assert (tmp_path / "runs" / "discrete" / "keep_left" / "policy.pt").exists()
@@ -143,7 +151,8 @@ def test_the_command_refuses_best_responses_without_a_matrix(runner, capsys):
 def test_the_report_names_partners_without_a_best_response_and_those_whose_best_response_never_succeeds():
     from sidewalk.report.crossplay import _adhoc_lines
 
-    text = "\n".join(_adhoc_lines(FRAME, "###", None, {"easy": 0.8, "hard": 0.0}))
+    responses = pd.DataFrame({"member": ["easy", "hard"], "success": [0.8, 0.0]})
+    text = "\n".join(_adhoc_lines(FRAME, "###", None, responses))
     assert "No best response cached for `unmatched`" in text
     assert "best response to `hard` never succeeds" in text
     assert "(1 partners)" in text  # only `easy` is left to BR-Prox
@@ -164,3 +173,39 @@ def test_a_stopped_best_response_job_says_how_to_continue_in_one_line(runner, tm
     err = capsys.readouterr().err.strip()
     assert code == 128 + signal.SIGTERM and "\n" not in err and "Traceback" not in err
     assert "SIGTERM received: checkpointed at iteration 7" in err and "run the same command again" in err
+
+
+def response(member: str, success: float, budget: int = 300, **more) -> dict:
+    """A best_responses.csv row trained against ``member`` for ``budget`` of DQN's 300 reference iterations."""
+    return {"member": member, "command": "", "budget": budget, "reference_budget": 300, "seeds": 1, "success": success,
+            "low": float("nan"), "high": float("nan"), "note": "1 run", "episodes": 64, "distinct_low": 9,
+            "distinct_high": 9, "run_folders": "", **more}
+
+
+def test_br_prox_over_under_trained_or_weak_best_responses_is_flagged_beside_the_figure(tmp_path, caplog):
+    from sidewalk.report.crossplay import _adhoc_lines
+
+    # The case seen: best responses at 20 of 300 iterations, 0.31 team success, made every condition's BR-Prox 1.
+    scores = {"keep_left": 0.5, "salsa": 0.9, "prm": 0.7, "hesitates": 0.2}
+    frame = matrix({"seed0": scores, "seed1": {name: value / 2 for name, value in scores.items()}})
+    write_cache(tmp_path, [response("keep_left", 0.31, budget=20), response("salsa", 0.97, budget=20),
+                           response("prm", 0.45), response("hesitates", 0.0, budget=20),
+                           response("dijkstra", 0.1, budget=20)])
+    lines = _adhoc_lines(frame, "###", None, best_response_table(tmp_path))
+    warning = next(line for line in lines if "Warning" in line)
+    assert "`keep_left` (20 iterations, reference 300; team success 0.31)" in warning
+    assert "`salsa` (20 iterations, reference 300; team success 0.97)" in warning  # short of its budget
+    assert "`prm` (300 iterations, reference 300; team success 0.45)" in warning  # weak with its partner
+    assert "hesitates" not in warning  # never succeeds: left out of BR-Prox (and named so)
+    assert "dijkstra" not in warning  # not a partner of this matrix
+    assert lines.index(warning) < lines.index(next(line for line in lines if line.startswith("| learner")))
+    assert "(3 partners) **over weak best responses: see the warning**" in "\n".join(lines)  # beside the figure
+    assert warning.strip("*") in caplog.text  # and printed
+
+    write_cache(tmp_path, [response(name, 0.97) for name in ("keep_left", "salsa", "prm", "hesitates")])
+    caplog.clear()
+    assert not any("Warning" in line for line in _adhoc_lines(frame, "###", None, best_response_table(tmp_path)))
+    assert "Warning" not in caplog.text
+    (tmp_path / BEST_RESPONSES_CSV).write_text("member,success\nkeep_left,0.31\n")  # a file of before the budgets
+    assert "`keep_left` (budget unknown; team success 0.31)" in "\n".join(
+        _adhoc_lines(frame, "###", None, best_response_table(tmp_path)))

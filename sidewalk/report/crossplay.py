@@ -36,6 +36,9 @@ ADHOC_COLUMNS = ("condition", "runs", "partners", "iqm", "low", "high", "mean", 
                  "note", "br_prox_partners", "br_prox_iqm", "br_prox_low", "br_prox_high")
 # Beside a matrix: each held-out partner's best response (columns member, success, ...), ZSC-Eval's BR-Prox.
 BEST_RESPONSES_CSV = "best_responses.csv"
+# A best response that gets through with its own partner in fewer of its worlds is no yardstick: every condition's
+# score over it reaches BR-Prox's cap of 1.
+WEAK_BEST_RESPONSE = 0.5
 REPORT = "report.md"
 # Heatmaps: CSV column -> (title, colour map); every value is a rate in [0, 1].
 HEATMAP_METRICS = {
@@ -179,16 +182,47 @@ def _br_prox(scores: pd.DataFrame, best: dict[str, float]) -> pd.DataFrame:
     return (scores / denominators).clip(upper=1.0).loc[:, ~np.isnan(denominators)]
 
 
-def read_best_responses(folder: Path) -> dict[str, float]:
-    """``folder/best_responses.csv`` as member → its best response's team success; empty where there is none."""
+def best_response_table(folder: Path) -> pd.DataFrame:
+    """``folder/best_responses.csv`` (``sidewalk.best_responses.BEST_RESPONSE_COLUMNS``), empty where there is none;
+    a file without the columns member and success is an error naming them."""
     path = Path(folder) / BEST_RESPONSES_CSV
     if not path.exists():
-        return {}
+        return pd.DataFrame(columns=["member", "success"])
     table = pd.read_csv(path)
     missing = {"member", "success"} - set(table.columns)
     if missing:
         raise ValueError(f"{path} lacks the column(s) {sorted(missing)}; it needs member and success")
+    return table.astype({"member": str, "success": float})
+
+
+def read_best_responses(folder: Path) -> dict[str, float]:
+    """``folder/best_responses.csv`` as member → its best response's team success; empty where there is none."""
+    return _successes(best_response_table(folder))
+
+
+def _successes(table: pd.DataFrame) -> dict[str, float]:
     return dict(zip(table["member"].astype(str), table["success"].astype(float)))
+
+
+def best_response_warning(table: pd.DataFrame, members: Sequence[str] | None = None) -> str:
+    """One line naming each best response of ``table`` (``best_responses.csv``; of ``members`` where given) that
+    BR-Prox should not rest on: trained for fewer iterations than its recipe's reference budget (``budget`` below
+    ``reference_budget``, where the file has both) or getting through with its own partner in fewer than
+    ``WEAK_BEST_RESPONSE`` of its worlds; "" when there is none."""
+    weak = []
+    for row in table.to_dict("records"):
+        if members is not None and row["member"] not in members:
+            continue
+        budget, reference = row.get("budget", math.nan), row.get("reference_budget", math.nan)
+        if budget < reference or row["success"] < WEAK_BEST_RESPONSE:  # an unknown (NaN) budget compares False
+            trained = "budget unknown" if math.isnan(budget) else f"{budget:.0f} iterations"
+            trained += "" if math.isnan(reference) else f", reference {reference:.0f}"
+            weak.append(f"`{row['member']}` ({trained}; team success {row['success']:.2f})")
+    if not weak:
+        return ""
+    return (f"Warning: best responses below their reference budget or weak with their own partner: {', '.join(weak)}. "
+            "BR-Prox over a weak best response reads high (every condition reaches its cap of 1): retrain them, at "
+            "least at the reference budget (`--train-best-responses` without `--iterations`), before reading it.")
 
 
 def _br_prox_text(members: Sequence[str], best: dict[str, float]) -> str:
@@ -234,12 +268,19 @@ def adhoc_comparisons(frame: pd.DataFrame) -> list[tuple[str, str, Interval]]:
     return pairs
 
 
-def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None, best: dict[str, float]) -> list[str]:
-    """The ad-hoc score's table, where the matrix has held-out partners; BR-Prox beside it where ``best`` has the
-    partners' best responses."""
+def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None, responses: pd.DataFrame) -> list[str]:
+    """The ad-hoc score's table, where the matrix has held-out partners; BR-Prox beside it where ``responses``
+    (``best_response_table``) has the partners' best responses, with ``best_response_warning`` (also logged) where
+    BR-Prox rests on weak ones."""
+    best = _successes(responses)
     table = adhoc_table(frame, best)
     if table is None:
         return []
+    heldout = [name.removeprefix("heldout:") for name in _ordered(_heldout(frame)["partner"])]
+    # Only those BR-Prox rests on: one that never succeeds is left out of it (and named by _br_prox_text).
+    warning = best_response_warning(responses, [name for name in heldout if best.get(name, 0) > 0])
+    if warning:
+        log.warning(warning)
     partners = ", ".join(f"`{name}`" for name in _ordered(frame.loc[frame["heldout"].astype(bool), "partner_label"]))
     md = [
         f"{sub} Ad-hoc score: partners never met",
@@ -250,15 +291,17 @@ def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None, best:
             "stratified-bootstrap interval over runs (seeds)."
         ),
         "",
-        _br_prox_text([name.removeprefix("heldout:") for name in _ordered(_heldout(frame)["partner"])], best),
+        _br_prox_text(heldout, best),
         "",
+        *([f"**{warning}**", ""] if warning else []),
         "| condition | runs | partners | IQM | 95 % interval | mean | distinct episodes a cell | BR-Prox IQM [95 %] |",
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in table.itertuples():
         interval = f"[{fmt(r.low)}, {fmt(r.high)}]" if not math.isnan(r.low) else r.note
         prox = ("–" if not r.br_prox_partners or math.isnan(r.br_prox_iqm) else
-                f"{fmt(r.br_prox_iqm)} [{fmt(r.br_prox_low)}, {fmt(r.br_prox_high)}] ({r.br_prox_partners} partners)")
+                f"{fmt(r.br_prox_iqm)} [{fmt(r.br_prox_low)}, {fmt(r.br_prox_high)}] ({r.br_prox_partners} partners)"
+                + (" **over weak best responses: see the warning**" if warning else ""))
         md.append(f"| {r.condition} | {r.runs} | {r.partners} | {fmt(r.iqm)} | {interval} | {fmt(r.mean)} | "
                   f"{distinct_range([r.distinct_low, r.distinct_high])} | {prox} |")
         if numbers is not None:
@@ -359,8 +402,8 @@ def crossplay_section(
     ``folder``: where the matrix's ``crossplay.csv`` is (linked for every cell's numbers)."""
     figures = figures if figures is not None else []
     sub = heading.split(" ", 1)[0] + "#"
-    best = read_best_responses(folder) if folder is not None else {}
-    md = [heading, ""] + _how_it_was_made(frame, meta, out, folder) + _adhoc_lines(frame, sub, numbers, best)
+    responses = best_response_table(folder) if folder is not None else pd.DataFrame(columns=["member", "success"])
+    md = [heading, ""] + _how_it_was_made(frame, meta, out, folder) + _adhoc_lines(frame, sub, numbers, responses)
     md += _conventions_lines(meta, sub)
     for metric, (title, cmap) in HEATMAP_METRICS.items():
         md += _metric_lines(frame, metric, title, cmap, figures_dir, prefix, out, figures, numbers, sub)
