@@ -28,13 +28,13 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.errors import HydraException, MissingConfigException
+from hydra.errors import HydraException
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from sidewalk import hydra_callbacks, run_folder
-from sidewalk.config import unknown_override
+from sidewalk.compose import one_line
 from sidewalk.continue_command import continue_command
 from sidewalk.hydra_callbacks import ERROR_FILE, checked
 from sidewalk.paths import CONFIG_DIR
@@ -148,22 +148,6 @@ def write_plots(run_dir: Path) -> None:
         print(f"warning: no plots: {type(error).__name__}: {error}", file=sys.stderr)
         return
     print(f"  plots and report       {result.report_md} ({len(result.figures)} figures)")
-
-
-def one_line(error: BaseException) -> str:
-    """A config error as one line: Hydra's own reports span many (options one per line, the search path)."""
-    cause = error.__cause__
-    if isinstance(cause, OmegaConfBaseException) and (unknown := unknown_override(cause)):
-        return unknown  # Hydra advises adding the typo with "+"; the schema's nearest key is what was meant
-    first = str(error).strip().split("\n\n")[0]
-    text = " ".join(line.strip() for line in first.splitlines() if line.strip())
-    if isinstance(error, MissingConfigException) and error.options:
-        # The per-domain defaults (*_default, *_selfplay) are no choice of the user's.
-        valid = [option for option in error.options if not option.endswith(("_default", "_selfplay"))]
-        text += f"; valid: {', '.join(valid)}"
-    if isinstance(cause, OmegaConfBaseException):
-        text += f": {str(cause).strip().splitlines()[0]}"
-    return text
 
 
 def scale_added(arguments: list[str]) -> list[str]:

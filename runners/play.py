@@ -6,11 +6,11 @@
     sidewalk-play opponent=policy opponent.path=results/runs/<RUN_DIR>     # a trained partner
     sidewalk-play env=continuous opponent=proxy opponent.params.dataset=sidewalk-play/continuous-prm-v0
 
-``key=value`` arguments are config overrides as for runners/main.py (env, layout, noise, partner and its settings).
-The page serves on 127.0.0.1 only unless --host says otherwise. Keys: arrows (grid: one cell a press, held: one a
-step, none: the game waits; continuous: up/down accelerate and brake, left/right turn), space pauses, R restarts. Every episode is
-saved to a Minari dataset (docs/guide/datasets.md): --dataset-id, --datasets DIR, or --no-record. Guide:
-docs/guide/play.md.
+``key=value`` arguments are config overrides as for runners/main.py (env, layout, noise, partner and its settings),
+checked as it checks them. The page serves on 127.0.0.1 only unless --host says otherwise. An episode starts at your
+first arrow or space. Keys: arrows (grid: one cell a press, held: one a step, none: the game waits; continuous:
+up/down accelerate and brake, left/right turn), space pauses and resumes, R restarts. Every episode is saved to a
+Minari dataset (docs/guide/datasets.md): --dataset-id, --datasets DIR, or --no-record. Guide: docs/guide/play.md.
 """
 
 from __future__ import annotations

@@ -7,8 +7,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from omegaconf import DictConfig
+from omegaconf.errors import OmegaConfBaseException
 
-from sidewalk.config import Experiment, validate
+from sidewalk.config import Experiment, unknown_override, validate
 from sidewalk.paths import CONFIG_DIR
 from sidewalk.schema import register_schemas
 
@@ -29,6 +30,25 @@ def compose(overrides: Sequence[str], conf_dir: Path | None = None, hydra_config
 def compose_experiment(overrides: Sequence[str], conf_dir: Path | None = None) -> Experiment:
     """The validated ``Experiment`` that ``runners/main.py`` would run with ``overrides``."""
     return validate(compose(overrides, conf_dir))
+
+
+def one_line(error: BaseException) -> str:
+    """A config error (Hydra's or OmegaConf's) as the one line ``runners/main.py`` and ``sidewalk-play`` print:
+    Hydra's own reports span many (options one per line, the search path)."""
+    from hydra.errors import MissingConfigException
+
+    cause = error.__cause__
+    if isinstance(cause, OmegaConfBaseException) and (unknown := unknown_override(cause)):
+        return unknown  # Hydra advises adding the typo with "+"; the schema's nearest key is what was meant
+    first = str(error).strip().split("\n\n")[0]
+    text = " ".join(line.strip() for line in first.splitlines() if line.strip())
+    if isinstance(error, MissingConfigException) and error.options:
+        # The per-domain defaults (*_default, *_selfplay) are no choice of the user's.
+        valid = [option for option in error.options if not option.endswith(("_default", "_selfplay"))]
+        text += f"; valid: {', '.join(valid)}"
+    if isinstance(cause, OmegaConfBaseException):
+        text += f": {str(cause).strip().splitlines()[0]}"
+    return text
 
 
 def fitting_algo(domain: str) -> str:

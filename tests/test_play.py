@@ -5,18 +5,26 @@ No person plays here: the keys come from a small scripted driver that reads the 
 presses what a person aiming for the goal would press.
 """
 
+import base64
+import io
 import json
 import math
 import os
+import re
 import shutil
 import socket
 import urllib.error
 import urllib.request
 
 import minari
+import numpy as np
 import pytest
+from matplotlib.image import imread
 
+from sidewalk.config import opponent_domains
+from sidewalk.envs.render import WALL, colour, draw_grid, draw_plane
 from sidewalk.play import build_server
+from sidewalk.play.command import compose_game_experiment
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 needs_chromium = pytest.mark.skipif(
@@ -133,12 +141,14 @@ def test_pause_holds_the_game_restart_starts_the_next_world_and_a_held_arrow_wal
     page = browser.new_page()
     page.goto(server.url)
     page.wait_for_selector("#frame[src^='data:image/png']")
+    page.click("#pause")  # Start
     page.keyboard.press(" ")
-    assert page.get_attribute("#status", "data-paused") == "true"
+    assert page.get_attribute("#status", "data-paused") == "true" and page.inner_text("#pause") == "Resume (space)"
     page.keyboard.press("ArrowRight")
     page.wait_for_timeout(600)  # more than two steps at the grid's four a second
     assert page.inner_text("#step") == "0"
     page.keyboard.press(" ")
+    assert page.inner_text("#pause") == "Pause (space)" and page.inner_text("#status") == "playing"
     page.wait_for_function("document.getElementById('step').textContent === '1'", timeout=5_000)
     page.keyboard.press("r")
     page.wait_for_function("document.getElementById('episode').textContent === '2'", timeout=5_000)
@@ -148,6 +158,84 @@ def test_pause_holds_the_game_restart_starts_the_next_world_and_a_held_arrow_wal
     page.keyboard.up("ArrowRight")
     assert page.inner_text("#outcome") == "running" and server.game.info["state"][0][1] >= 3
     page.close()
+
+
+def frame_of(page) -> np.ndarray:
+    """The frame the page shows, as the RGB array the server's env drew."""
+    png = base64.b64decode(page.get_attribute("#frame", "src").split(",", 1)[1])
+    return (imread(io.BytesIO(png), format="png")[..., :3] * 255).round().astype(np.uint8)
+
+
+def grid_cell(frame: np.ndarray, rows: int, cell) -> np.ndarray:
+    k = frame.shape[0] // rows
+    row, col = (int(value) for value in cell)
+    return frame[row * k : (row + 1) * k, col * k : (col + 1) * k]
+
+
+def pixels_of(patch: np.ndarray, rgb) -> int:
+    return int((patch == np.array(rgb, dtype=np.uint8)).all(-1).sum())
+
+
+@needs_chromium
+def test_the_page_loads_without_an_error_and_the_world_waits_for_the_person_to_start(serve, browser):
+    server = serve("env=continuous", "opponent=prm", record=False)
+    page = browser.new_page()
+    failures = []
+    page.on("response", lambda reply: reply.status >= 400 and failures.append(f"{reply.status} {reply.url}"))
+    page.on("console", lambda message: message.type == "error" and failures.append(message.text))
+    page.goto(server.url)
+    page.wait_for_selector("#frame[src^='data:image/png']")
+    page.wait_for_timeout(1500)  # seven steps of the world's five a second
+    assert server.game.steps == 0 and page.inner_text("#step") == "0"
+    assert "to begin" in page.inner_text("#status") and page.inner_text("#pause") == "Start"
+    page.keyboard.down("ArrowUp")
+    page.wait_for_function("Number(document.getElementById('step').textContent) >= 2", timeout=5_000)
+    page.keyboard.up("ArrowUp")
+    assert page.inner_text("#status") == "playing" and failures == []  # no /favicon.ico asked for, nor a 404
+    page.close()
+
+
+@needs_chromium
+def test_your_goal_shows_under_the_partner_at_the_start(serve, browser):
+    server = serve("opponent=dijkstra", record=False)
+    page = browser.new_page()
+    page.goto(server.url)
+    page.wait_for_selector("#frame[src^='data:image/png']")
+    info, rows = server.game.info, server.game.face.view.core.rows
+    assert (info["state"][1] == info["goal"][0]).all()  # the partner starts on your goal
+    goal = grid_cell(frame_of(page), rows, info["goal"][0])
+    assert pixels_of(goal, colour(1)) >= 50  # the partner, and over its edge your star's outline: more than the
+    assert pixels_of(goal, colour(0)) >= 100  # tips around it (30 px), which were all a person saw of the star
+    page.close()
+
+
+@needs_chromium
+def test_after_a_crash_the_agent_shows_crossed_out_and_space_keeps_the_outcome(serve, browser):
+    server = serve("opponent=dijkstra", record=False)
+    page = browser.new_page()
+    page.goto(server.url)
+    page.wait_for_selector("#frame[src^='data:image/png']")
+    play(page, server, lambda info, _: page.keyboard.press("ArrowUp"))  # up the grid, into its wall
+    assert page.inner_text("#outcome") == "hit a wall"
+    ego = grid_cell(frame_of(page), server.game.face.view.core.rows, server.game.info["state"][0])
+    k = ego.shape[0]
+    assert pixels_of(ego, colour(0)) >= 50 and tuple(ego[k // 2, k // 2]) == WALL  # drawn where it crashed, crossed
+    page.keyboard.press(" ")
+    assert page.inner_text("#status") == "episode over: hit a wall; R restarts"
+    assert page.get_attribute("#status", "data-paused") == "false" and page.is_disabled("#pause")
+    page.close()
+
+
+def test_agents_that_collide_both_show_where_they_crashed():
+    both = np.array([False, False])
+    grid = draw_grid(3, 4, np.zeros((3, 4), bool), np.array([[1, 1], [1, 1]]), np.array([[0, 3], [2, 0]]), both, 24)
+    plane = draw_plane(4.0, 2.0, np.zeros((0, 4)), np.array([[1.7, 1.0], [2.3, 1.0]]), np.zeros(2),
+                       np.array([[3.5, 1.0], [0.5, 1.0]]), both, 0.3, 60)
+    cell = grid_cell(grid, 3, (1, 1))  # one cell, shared by both
+    assert pixels_of(cell, colour(0)) >= 30 and pixels_of(cell, colour(1)) >= 30 and tuple(cell[12, 12]) == WALL
+    for agent, x_px in enumerate((4 + 1.7 * 60, 4 + 2.3 * 60)):  # 4 px of wall, 60 px a metre; y = 1 m: 64 px
+        disc = plane[64 - 18 : 64 + 18, round(x_px) - 18 : round(x_px) + 18]
+        assert pixels_of(disc, colour(agent)) >= 300 and tuple(disc[18, 18]) == WALL
 
 
 def request(server, path: str, body: bytes | None = None, headers: dict[str, str] | None = None):
@@ -248,12 +336,29 @@ def run_play(runner, *argv):
     (["opponent=self", "--no-browser"], "opponent='self' is a learner's view, not a partner"),
     (["env=continuous", "opponent=dijkstra", "--no-browser", "--no-record"], "dijkstra"),
     (["noise=-1", "--no-browser", "--no-record"], "noise"),
+    (["nosie=0.3", "--no-browser", "--no-record"], ("unknown key 'nosie' (did you mean 'noise'?) for the experiment "
+                                                     "(top level); valid: env, opponent,")),
+    (["noise=abc", "--no-browser", "--no-record"], "noise=abc: Value 'abc' of type 'str' could not be converted"),
     (["--dataset-id", "no-version", "--no-browser"], "is not of Minari's form"),
 ])
 def test_bad_input_is_one_error_line_before_serving(runner, capsys, tmp_path, argv, words):
     assert run_play(runner, *argv, "--datasets", str(tmp_path)) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and words in err[0], err
+
+
+@pytest.mark.parametrize("domain, opponent", [("continuous", "dijkstra"), ("discrete", "self"), ("discrete", "nobody")])
+def test_the_partners_named_valid_are_exactly_those_play_takes_in_that_world(runner, capsys, domain, opponent):
+    assert run_play(runner, f"env={domain}", f"opponent={opponent}", "--no-browser", "--no-record") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and opponent in err[0], err
+    named = re.search(r"valid[^:]*: (.*)$", err[0]).group(1).split(", ")
+    for choice in opponent_domains():
+        if choice in named:
+            compose_game_experiment([f"env={domain}", f"opponent={choice}"])
+        else:
+            with pytest.raises(ValueError, match=f"opponent={choice!r} is"):
+                compose_game_experiment([f"env={domain}", f"opponent={choice}"])
 
 
 # test_experiment.py's tiny grid DQN run: finished_run trains it once for the whole suite.

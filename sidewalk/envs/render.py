@@ -8,6 +8,9 @@ BACKGROUND = (236, 236, 228)
 WALL = (60, 60, 60)
 CELL_LINE = (205, 205, 198)
 TICK = (255, 255, 255)
+# A goal's outline is drawn over the agents' edges (a goal under an agent still shows), GOAL_RIM of the star's radius
+# thick (2 px at least) and just outside the star; an agent's middle, AGENT_CORE of its radius, stays on top.
+GOAL_RIM, AGENT_CORE = 0.13, 0.6
 # One colour per agent (and its goal): the first six are matplotlib's tab10, the other ten were picked
 # greedily for the largest least CIELAB distance to every colour before them and to the background, walls
 # and ticks, so 16 agents stay apart (least ΔE76 ≈ 34). Larger teams cycle.
@@ -61,14 +64,34 @@ def _agent(
     _disc(image, centre_xy, radius_px - rim_px, rgb)
 
 
-def _star(image: np.ndarray, centre_xy: tuple[float, float], radius_px: float, rgb: tuple[int, int, int]) -> None:
-    """A five-pointed star: a point is inside when its radius is below the star's outline at its angle."""
-    patch, dx, dy = _window(image, centre_xy, radius_px)
+def _star(
+    image: np.ndarray, centre_xy: tuple[float, float], radius_px: float, rgb: tuple[int, int, int], rim: bool = False
+) -> None:
+    """A five-pointed star, or with ``rim`` a line just outside its outline: a point is inside when its radius is
+    below the star's outline at its angle."""
+    rim_px = max(2.0, GOAL_RIM * radius_px) if rim else 0.0
+    patch, dx, dy = _window(image, centre_xy, radius_px + rim_px)
     dy = -dy
     angle = np.arctan2(dy, dx) - np.pi / 2
     sector = np.abs(((angle % (2 * np.pi / 5)) / (2 * np.pi / 5)) - 0.5) * 2  # 1 at the tips, 0 between them
     outline = radius_px * (0.45 + 0.55 * sector)
-    patch[np.hypot(dx, dy) <= outline] = rgb
+    distance = np.hypot(dx, dy)
+    inside = distance <= outline + rim_px
+    patch[inside & (distance > outline) if rim else inside] = rgb
+
+
+def _crashed(
+    image: np.ndarray, centre_xy: tuple[float, float], radius_px: float, colours: list[tuple[int, int, int]]
+) -> None:
+    """Crashed agents where they crashed (several in one place share the disc, a slice each), crossed out."""
+    _disc(image, centre_xy, radius_px, WALL)
+    patch, dx, dy = _window(image, centre_xy, radius_px)
+    inside = dx**2 + dy**2 <= (0.88 * radius_px) ** 2
+    slice_of = np.floor((np.arctan2(dy, dx) + np.pi) / (2 * np.pi) * len(colours)).astype(int) % len(colours)
+    for index, rgb in enumerate(colours):
+        patch[inside & (slice_of == index)] = rgb
+    half_width = max(1.0, 0.12 * radius_px)
+    patch[inside & ((np.abs(dx - dy) <= half_width) | (np.abs(dx + dy) <= half_width))] = WALL
 
 
 def draw_grid(
@@ -80,8 +103,9 @@ def draw_grid(
     present: np.ndarray,
     pixels_per_cell: int,
 ) -> np.ndarray:
-    """Grid world, (rows·k, cols·k, 3) uint8: interior walls dark, each goal a star and each present agent a
-    disc in the agent's ``colour`` (agent 0 red, agent 1 blue, ...); any number of agents."""
+    """Grid world, (rows·k, cols·k, 3) uint8: interior walls dark, each goal a star (outlined over the agents) and
+    each present agent a disc in the agent's ``colour`` (agent 0 red, agent 1 blue, ...), a crashed one (not present)
+    crossed out where it crashed; any number of agents."""
     k = pixels_per_cell
     image = np.empty((rows * k, cols * k, 3), dtype=np.uint8)
     image[:] = BACKGROUND
@@ -89,11 +113,25 @@ def draw_grid(
     image[:, ::k] = CELL_LINE
     for row, col in zip(*np.nonzero(blocked)):
         image[row * k : (row + 1) * k, col * k : (col + 1) * k] = WALL
+
+    def centre(row: int, col: int) -> tuple[float, float]:
+        return (col + 0.5) * k, (row + 0.5) * k
+
     for agent, (row, col) in enumerate(goals):
-        _star(image, ((col + 0.5) * k, (row + 0.5) * k), 0.45 * k, colour(agent))
+        _star(image, centre(row, col), 0.45 * k, colour(agent))
+    crashed: dict[tuple[int, int], list] = {}  # two agents that collide in a cell share it
     for agent, (row, col) in enumerate(positions):
-        if present[agent]:
-            _agent(image, ((col + 0.5) * k, (row + 0.5) * k), 0.35 * k, colour(agent))
+        if not present[agent]:
+            crashed.setdefault((int(row), int(col)), []).append(colour(agent))
+    for cell, colours in crashed.items():
+        _crashed(image, centre(*cell), 0.35 * k, colours)
+    shown = [(agent, centre(row, col)) for agent, (row, col) in enumerate(positions) if present[agent]]
+    for agent, xy in shown:
+        _agent(image, xy, 0.35 * k, colour(agent))
+    for agent, (row, col) in enumerate(goals):  # over the agents: a goal under an agent (each start) still shows
+        _star(image, centre(row, col), 0.45 * k, colour(agent), rim=True)
+    for agent, xy in shown:
+        _disc(image, xy, AGENT_CORE * 0.35 * k, colour(agent))
     return image
 
 
@@ -109,8 +147,9 @@ def draw_plane(
     pixels_per_m: int,
 ) -> np.ndarray:
     """Continuous world seen from above (x to the right, y up), an array (round(width_m·ppm) + 8,
-    round(length_m·ppm) + 8, 3) uint8: walls as a dark border and dark interior boxes, goals as stars and
-    agents as discs with a heading tick, each in the agent's ``colour``; any number of agents."""
+    round(length_m·ppm) + 8, 3) uint8: walls as a dark border and dark interior boxes, goals as stars (outlined
+    over the agents) and agents as discs with a heading tick, each in the agent's ``colour``, a crashed one (not
+    present) crossed out where it crashed; any number of agents."""
     border = 4
     width_px, height_px = round(length_m * pixels_per_m), round(width_m * pixels_per_m)
     image = np.empty((height_px + 2 * border, width_px + 2 * border, 3), dtype=np.uint8)
@@ -127,10 +166,16 @@ def draw_plane(
     for agent, (x, y) in enumerate(goals):
         # A little larger than an agent, so the tips show around an agent standing on the goal.
         _star(image, to_px(x, y), 1.25 * radius_px, colour(agent))
-    for agent, ((x, y), theta) in enumerate(zip(positions, headings)):
+    for agent, (x, y) in enumerate(positions):
         if not present[agent]:
-            continue
+            _crashed(image, to_px(x, y), radius_px, [colour(agent)])
+    shown = [(agent, x, y, theta) for agent, ((x, y), theta) in enumerate(zip(positions, headings)) if present[agent]]
+    for agent, x, y, _ in shown:
         _agent(image, to_px(x, y), radius_px, colour(agent))
+    for agent, (x, y) in enumerate(goals):  # over the agents: a goal under an agent (each start) still shows
+        _star(image, to_px(x, y), 1.25 * radius_px, colour(agent), rim=True)
+    for agent, x, y, theta in shown:
+        _disc(image, to_px(x, y), AGENT_CORE * radius_px, colour(agent))
         for fraction in np.linspace(0.0, 0.85, 10):  # heading tick from the centre to the rim
             tx, ty = to_px(x + fraction * radius_m * np.cos(theta), y + fraction * radius_m * np.sin(theta))
             _disc(image, (tx, ty), max(1.5, 0.08 * radius_px), TICK)

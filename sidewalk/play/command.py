@@ -16,21 +16,23 @@ def default_dataset_id(domain: str, opponent: str) -> str:
 
 
 def compose_game_experiment(overrides: Sequence[str]):
-    """The validated experiment of ``overrides`` (as ``runners/main.py`` composes them), for its world and partner;
-    Hydra's and the config's errors become one ``ValueError`` line."""
+    """The validated experiment of ``overrides`` (as ``runners/main.py`` composes and checks them), for its world and
+    partner; Hydra's and the config's errors become one ``ValueError`` line, as ``runners/main.py`` prints them."""
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from sidewalk.compose import compose, fitting_algo
-    from sidewalk.config import validate
+    from sidewalk.compose import compose, fitting_algo, one_line
+    from sidewalk.config import DOMAINS, validate
 
-    domain = next((item.split("=", 1)[1] for item in overrides if item.startswith("env=")), "discrete")
+    chosen = dict(item.partition("=")[::2] for item in overrides)  # the last of a key wins, as in Hydra
+    domain = chosen.get("env", "discrete")
+    if "opponent" in chosen and domain in DOMAINS:
+        check_partner(chosen["opponent"], domain)  # before Hydra, whose options for an unknown one are not partners
     try:
         cfg = compose([f"algo={fitting_algo(domain)}", *overrides])
     except (HydraException, OmegaConfBaseException) as error:
-        text = " ".join(str(error).split()).split(" Config search path")[0]  # Hydra's folders say nothing here
-        raise ValueError(text) from None
-    check_partner(cfg.opponent.name)
+        raise ValueError(one_line(error)) from None
+    check_partner(cfg.opponent.name, cfg.env.domain)
     return validate(cfg)
 
 

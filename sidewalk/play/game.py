@@ -17,8 +17,9 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from sidewalk.config import Experiment
+from sidewalk.config import LEARNER_PLAYS_ALL, Experiment
 from sidewalk.interop.gymnasium import ENV_IDS
+from sidewalk.registry import OPPONENTS
 
 GRID_MOVES = ("up", "down", "left", "right")  # the grid's actions UP, DOWN, LEFT, RIGHT, in that order
 DIRECTIONS = (-1, 0, 1)  # continuous: each key axis is released (0), or held one way (±1)
@@ -26,14 +27,19 @@ DRIVER = "a person (sidewalk-play)"
 GRID_STEPS_PER_S = 4.0  # the grid has no dt: four moves a second is a walking pace a person can steer
 
 
-LEARNER_VIEWS = ("centralized", "self")  # opponent= values that name how a learner sees the game, not a partner
+def partners(domain: str) -> list[str]:
+    """Whom a person can walk against in ``domain``: the opponents that declare it (the registry's); ``centralized``
+    and ``self`` name how a learner sees the game, not partners."""
+    return [name for name in OPPONENTS if domain in OPPONENTS[name].domains]
 
 
-def check_partner(opponent: str) -> None:
-    """A ``ValueError`` when ``opponent`` is not someone a person can walk against."""
-    if opponent in LEARNER_VIEWS:
-        raise ValueError(f"opponent={opponent!r} is a learner's view, not a partner; valid: a scripted opponent, "
-                         "convention, population, proxy or policy")
+def check_partner(opponent: str, domain: str) -> None:
+    """A ``ValueError`` naming the valid partners when ``opponent`` is not one a person can walk against in
+    ``domain``."""
+    valid = partners(domain)
+    if opponent not in valid:
+        what = "a learner's view, not a partner" if opponent in LEARNER_PLAYS_ALL else "not a partner"
+        raise ValueError(f"opponent={opponent!r} is {what} in env={domain}; valid: {', '.join(valid)}")
 
 
 class GameError(ValueError):
@@ -69,7 +75,7 @@ class Game:
     """The ego of one world, played by keys; ``reset`` and ``step`` return what the page shows (``state``)."""
 
     def __init__(self, experiment: Experiment, recording: Recording | None = None, seed: int = 0) -> None:
-        check_partner(experiment.opponent)
+        check_partner(experiment.opponent, experiment.domain)
         self.domain = experiment.domain
         self.kwargs = env_kwargs(experiment)
         self.env = gymnasium.make(ENV_IDS[self.domain], render_mode="rgb_array", **self.kwargs)

@@ -1,7 +1,9 @@
 // The page only sends keys and shows what the server's env draws: the dynamics live in the package, not here.
 "use strict";
 const GRID_KEYS = { ArrowUp: "up", ArrowDown: "down", ArrowLeft: "left", ArrowRight: "right" };
-const game = { info: null, held: new Set(), moves: [], paused: false, done: false, busy: false };
+// An episode waits for the person's first key (or Start): the world does not step before they are there.
+const game = { info: null, held: new Set(), moves: [], started: false, paused: false, done: false, outcome: "",
+               busy: false };
 const $ = (id) => document.getElementById(id);
 
 async function api(path, body) {
@@ -20,8 +22,20 @@ function show(state) {
   $("return").textContent = state.return.toFixed(2);
   $("episode").textContent = state.episode;
   game.done = state.done;
-  $("status").dataset.done = String(state.done);
-  $("status").textContent = state.done ? `episode over: ${state.outcome}; R restarts` : (game.paused ? "paused" : "playing");
+  game.outcome = state.outcome;
+  showStatus();
+}
+
+// The status line and the Start/Pause/Resume button say what the person's next key does.
+function showStatus() {
+  const status = $("status");
+  Object.assign(status.dataset, { started: game.started, paused: game.paused, done: game.done });
+  status.textContent = game.done ? `episode over: ${game.outcome}; R restarts`
+    : !game.started ? "press an arrow key or space, or click Start, to begin"
+    : game.paused ? "paused: space resumes" : "playing";
+  $("pause").textContent = game.done ? "Pause (space)" : !game.started ? "Start"
+    : game.paused ? "Resume (space)" : "Pause (space)";
+  $("pause").disabled = game.done;
 }
 
 async function send(path, body) {
@@ -48,7 +62,7 @@ function gridMove() {
 }
 
 function tick() {
-  if (game.paused || game.done || game.busy || !game.info) return;
+  if (!game.started || game.paused || game.done || game.busy || !game.info) return;
   if (game.info.domain === "discrete") {
     const move = gridMove();
     if (move) send("/api/step", { move });
@@ -57,14 +71,16 @@ function tick() {
   }
 }
 
-function togglePause() {
-  game.paused = !game.paused;
-  $("status").dataset.paused = String(game.paused);
-  $("status").textContent = game.paused ? "paused" : "playing";
+// Space starts, pauses and resumes; once the episode is over, the outcome stays on show until R.
+function startOrPause() {
+  if (game.done) return;
+  if (game.started) game.paused = !game.paused;
+  else game.started = true;
+  showStatus();
 }
 
 function restart() {
-  game.moves = [];
+  Object.assign(game, { moves: [], started: false, paused: false });
   send("/api/reset", {});
 }
 
@@ -75,15 +91,16 @@ document.addEventListener("keydown", (event) => {
     game.held.delete(event.key);  // re-added last: the arrow pressed last leads
     game.held.add(event.key);
     if (game.moves.length < 8) game.moves.push(GRID_KEYS[event.key]);
+    if (!game.started) startOrPause();  // the first arrow starts the episode, and is its first move
   } else if (event.key === " ") {
     event.preventDefault();
-    togglePause();
+    startOrPause();
   } else if (event.key === "r" || event.key === "R") {
     restart();
   }
 });
 document.addEventListener("keyup", (event) => game.held.delete(event.key));
-$("pause").addEventListener("click", togglePause);
+$("pause").addEventListener("click", startOrPause);
 $("restart").addEventListener("click", restart);
 
 (async () => {
@@ -97,7 +114,7 @@ $("restart").addEventListener("click", restart);
   $("about").textContent = `${game.info.domain} sidewalk: you are the red agent (agent 0), walking to the red ` +
     `star, against ${game.info.partner}, ${game.info.steps_per_s} steps a second.`;
   $("settings").textContent = settings ? `Partner settings: ${settings}.` : "";
-  $("keys").textContent = `Keys: ${game.info.keys}; space pauses, R restarts.`;
+  $("keys").textContent = `Keys: ${game.info.keys}; space starts and pauses, R restarts.`;
   $("recording").textContent = game.info.recording ? `Episodes are saved to the dataset ${game.info.recording}.` : "Episodes are not saved.";
   show(await api("/api/state"));
   setInterval(tick, 1000 / game.info.steps_per_s);
