@@ -21,6 +21,7 @@ from sidewalk.reference import (
     find_reference_root,
     main,
     probe,
+    rate_tolerance,
     references,
     status_table,
 )
@@ -105,7 +106,8 @@ def test_one_deterministic_episode_that_ends_otherwise_is_rounding_only_after_th
                              "eval/ego/collision_rate": [None, 0.0], "eval/ego/episode_length": [None, 300.0]})
     diverged = recorded.assign(**{"eval/ego/collision_rate": [None, 1.0], "eval/ego/episode_length": [None, 263.0]})
     (result,) = compare(recorded, diverged)
-    assert result.same and result.detail.startswith("training equal within rounding; the evaluation's one distinct")
+    assert result.same and result.detail.startswith("training equal within rounding; the evaluation's outcomes moved "
+                                                    "within sampling error over 1 distinct episodes")
     assert not compare(recorded, diverged.assign(**{"train/kl": [0.0077, 0.0070]}))[0].same  # training moved too
     assert not compare(recorded, diverged.assign(**{"eval/episodes": [None, 32.0]}))[0].same  # another protocol
     many = {"eval/distinct_episodes": [None, 16.0]}  # 16 worlds: a rate moves by a share, not by rounding
@@ -225,3 +227,69 @@ def test_a_job_counts_once_every_group_of_seeds_has_run_it(tmp_path):
     assert split.committed_jobs() == []
     add_run(groups[1])
     assert split.committed_jobs() == [job]
+
+
+# The shielded continuous TRPO's probe, recorded at its commit and made on an AMD EPYC Zen 3 and Zen 4 (and with
+# ATEN_CPU_CAPABILITY=default): training equal to 6e-5, 2 of 16 evaluation episodes ending otherwise.
+SHIELDED_TRPO = {"iteration": [1, 2], "train/kl": [0.006970343645662069, 0.006222985684871674],
+                 "eval/episodes": [None, 16.0], "eval/distinct_episodes": [None, 16.0],
+                 "eval/ego/success_rate": [None, 0.5], "eval/ego/timeout_rate": [None, 0.4375],
+                 "eval/deadlock_rate": [None, 0.4375], "eval/return": [None, -0.4642132520675659],
+                 "eval/social/jerk": [None, 1.247406244277954]}
+OTHER_KERNELS = {"train/kl": [0.0069704498164355755, 0.00622307974845171], "eval/ego/success_rate": [None, 0.625],
+                 "eval/ego/timeout_rate": [None, 0.3125], "eval/deadlock_rate": [None, 0.3125],
+                 "eval/return": [None, -0.27438557147979736], "eval/social/jerk": [None, 1.4410121440887451]}
+
+
+def test_an_evaluation_whose_outcomes_another_cpu_moved_is_compared_as_rates_at_its_distinct_episodes():
+    recorded = pd.DataFrame({"job": "trpo", **SHIELDED_TRPO})
+    (result,) = compare(recorded, recorded.assign(**OTHER_KERNELS))
+    assert result.same and "moved within sampling error over 16 distinct episodes" in result.detail, result.detail
+    # What it protects: training beyond rounding; a rate moved further than 16 episodes' sampling allows; a mean that
+    # moved while no outcome did (a change of what the evaluation computes); another episode count.
+    for moved, named in [({"train/kl": [0.0069704, 0.0064]}, "train/kl at iteration 2"),
+                         ({"eval/ego/success_rate": [None, 0.0], "eval/ego/timeout_rate": [None, 1.0]},
+                          "eval/ego/success_rate at iteration 2: recorded 0.5, today 0"),
+                         ({"eval/social/jerk": [None, 1.3]}, "eval/social/jerk at iteration 2"),
+                         ({"eval/distinct_episodes": [None, 15.0]}, "eval/distinct_episodes at iteration 2")]:
+        changed = {**(OTHER_KERNELS if "eval/social/jerk" not in moved else {}), **moved}
+        (result,) = compare(recorded, recorded.assign(**changed))
+        assert not result.same and result.detail.startswith(named), (moved, result.detail)
+    assert rate_tolerance(0.5, 0.625, 16) == pytest.approx(3 * (2 * 0.5625 * 0.4375 / 16) ** 0.5 + 1 / 16)
+    assert rate_tolerance(0.0, 0.0, 256) == 1 / 256
+
+
+# Probed in a process whose ATen kernels are another CPU kind's (ATEN_CPU_CAPABILITY=default: no AVX2/AVX-512
+# vectorisation, other reduction orders): the jobs whose evaluations measured chaotic there and on an AVX-512 EPYC.
+OTHER_KERNELS_PROBE = """
+import sys
+from pathlib import Path
+from sidewalk.reference import Reference, compare, probe
+import torch
+reference = Reference.load(Path(sys.argv[1]))
+jobs = {job: reference.jobs[job] for job in sys.argv[2:]}
+recorded = reference.recorded_probe()
+for result in compare(recorded[recorded["job"].isin(jobs)], probe(jobs, progress=False)):
+    print(torch.backends.cpu.get_cpu_capability(), result.job, result.same, result.detail, sep="|")
+"""
+
+
+def test_the_probe_holds_on_another_cpu_kinds_kernels_and_still_catches_a_reward_constant():
+    import os
+    import subprocess
+    import sys
+
+    safe = REFERENCE_ROOT / "safe"
+    done = subprocess.run([sys.executable, "-c", OTHER_KERNELS_PROBE, str(safe), "continuous/trpo,shield=true"],
+                          env={**os.environ, "ATEN_CPU_CAPABILITY": "default"}, capture_output=True, text=True,
+                          timeout=600, check=False)
+    assert done.returncode == 0, done.stderr[-3000:]
+    ((capability, job, same, detail),) = [line.split("|", 3) for line in done.stdout.splitlines()]
+    assert (capability, job, same) == ("DEFAULT", "continuous/trpo,shield=true", "True"), detail
+    # The same job with the goal reward changed (0.5 -> 0.45) is caught, in its training, within the probe.
+    reference = Reference.load(safe)
+    recorded = reference.recorded_probe()
+    changed = probe({"continuous/trpo,shield=true": [*reference.jobs["continuous/trpo,shield=true"],
+                                                     "reward.c_goal=0.45"]}, progress=False)
+    (result,) = compare(recorded[recorded["job"] == "continuous/trpo,shield=true"], changed)
+    assert not result.same and result.detail.startswith("train/"), result.detail
