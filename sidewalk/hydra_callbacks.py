@@ -12,6 +12,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from sidewalk.config import Experiment, validate
+from sidewalk.loggers import check_logger
 from sidewalk.opponents.policy import check_partner_of
 from sidewalk.run_folder import RunFolderError
 
@@ -23,9 +24,16 @@ log = logging.getLogger(__name__)
 
 
 def checked(cfg: DictConfig) -> Experiment:
-    """The validated experiment of ``cfg``, its learned partner's folder checked too: every check before compute."""
+    """The validated experiment of ``cfg``, its logger's package, its learned partner's folder and one world of it
+    built as training builds it: every check before compute, so a bad partner setting (``tie_break=rnd``), a missing
+    dataset or an uninstalled logger is refused with the config's errors, before Hydra makes a folder."""
+    from sidewalk.experiment import experiment_env
+
     experiment = validate(cfg)
+    check_logger(experiment.logger.name)
     check_partner_of(experiment)
+    if experiment.opponent != "policy":  # a learned partner's folder is checked above; rebuilding it costs a learner
+        experiment_env(experiment, 1, experiment.seed)  # the partner's constructor checks its settings in its world
     return experiment
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import json
 import subprocess
 import sys
@@ -16,6 +17,7 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from sidewalk.config import validate
+from sidewalk.loggers import BACKEND_PACKAGES, check_logger
 from sidewalk.registry import LEARNERS
 from sidewalk.schema import register_schemas
 
@@ -178,6 +180,9 @@ with open(outcomes_file, "w") as file:  # not stdout: a library's log handler ma
     json.dump(outcomes, file)
 """
 
+# A logger backend whose package this environment lacks (the dev extras install none of them).
+MISSING_LOGGER = next((name for name, package in BACKEND_PACKAGES.items() if importlib.util.find_spec(package) is None),
+                      None)
 # name: (arguments, exit status, what stderr must hold, what it must not); the run folder is `<tmp>/<name>`.
 CLI_CASES = {
     "pairing": (["opponent=prm"], 2, ["does not play env=discrete"], []),
@@ -199,6 +204,17 @@ CLI_CASES = {
     "device": ([f"device=cuda:{torch.cuda.device_count()}"], 2,
                [f"error: device='cuda:{torch.cuda.device_count()}' is not available on this machine", "'cpu'"],
                ["AssertionError"]),
+    # Values only the partner's constructor or the job's start knew were bad: refused as the config's are, by
+    # building one world of the experiment before Hydra makes the folder (they exited 1 leaving a main.log).
+    "partner_value": (["opponent.params.tie_break=rnd"], 2,
+                      ["error: tie_break='rnd' is not valid; valid: 'random', 'progress'"], ["Error executing job"]),
+    "partner_value_continuous": (["env=continuous", "opponent=prm", "opponent.params.n_nodes=1"], 2,
+                                 ["error: n_nodes=1"], ["Error executing job"]),
+    "missing_dataset": (["opponent=proxy", "opponent.params.dataset=sidewalk/none-v0"], 2,
+                        ["error: ", "'sidewalk/none-v0'"], ["Error executing job"]),
+    **({"logger_package": ([f"logger={MISSING_LOGGER}"], 2,
+                           [f"error: logger={MISSING_LOGGER} needs the '{MISSING_LOGGER}' package", "usable here: csv"],
+                           ["Error executing job"])} if MISSING_LOGGER else {}),
 }
 
 
@@ -248,3 +264,14 @@ def test_a_sweep_with_a_bad_point_is_refused_before_its_first_job(cli_outcomes):
     assert "error: job 1 (noise=-0.1): noise=-0.1 is out of range; valid: [0.0, 1.0]; no job was started" in stderr
     assert not sweep_dir.exists()
 
+
+
+def test_a_logger_whose_package_is_missing_is_refused_naming_the_install(monkeypatch):
+    import sidewalk.loggers
+
+    installed = {"wandb"}
+    monkeypatch.setattr(sidewalk.loggers.importlib.util, "find_spec", lambda name: name in installed or None)
+    check_logger("csv"), check_logger("wandb"), check_logger("none")
+    with pytest.raises(ValueError, match=r"logger=mlflow needs the 'mlflow' package, which is not installed here: "
+                                         r"pip install mlflow .*; usable here: csv, wandb, none$"):
+        check_logger("mlflow")
