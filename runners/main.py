@@ -42,8 +42,11 @@ from sidewalk.schema import register_schemas
 
 register_schemas()
 
-HEADLINE = ("ego/success_rate", "ego/collision_rate", "ego/return", "other/success_rate", "team/success_rate",
-            "success_rate", "collision_rate", "return", "episode_length")
+# The learner's own figures first (the ego's, or the team's where it plays every agent), then the partner's, then
+# the means over every agent, labelled so: a bare success_rate beside the ego's read as the learner's.
+HEADLINE = {"ego/success_rate": "", "ego/collision_rate": "", "ego/return": "", "team/success_rate": "",
+            "other/success_rate": "", "success_rate": " (mean over agents)", "collision_rate": " (mean over agents)",
+            "return": " (mean over agents)", "episode_length": ""}
 
 
 @hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="config")
@@ -127,14 +130,24 @@ def report(summaries: list[dict], run_dir: Path, plots: bool) -> float | None:
     for summary in summaries:
         if len(summaries) > 1:
             print(f"  seed {summary['seed']}:")
-        for key in HEADLINE:
+        print(f"  {evaluated_on(summary)}")
+        for key, label in HEADLINE.items():
             if key in summary:
-                print(f"  {key:22s} {summary[key]:.3f}")
-        print(f"  {'wall_clock_s':22s} {summary['wall_clock_s']:.1f}")
+                print(f"  {key + label:40s} {summary[key]:.3f}")
+        print(f"  {'wall_clock_s':40s} {summary['wall_clock_s']:.1f}")
     if plots:
         write_plots(run_dir)
     successes = [summary.get("ego/success_rate", summary.get("team/success_rate")) for summary in summaries]
     return sum(successes) / len(successes) if None not in successes else None
+
+
+def evaluated_on(summary: dict) -> str:
+    """What the figures rest on: "eval: perturbed, 256 episodes (246 distinct)"."""
+    protocol = (summary.get("eval_protocol") or {}).get("name", "nominal")
+    episodes, distinct = summary.get("episodes"), summary.get("distinct_episodes")
+    counted = "" if episodes is None else f", {int(episodes):,} episodes" + (
+        "" if distinct is None else f" ({int(distinct):,} distinct)")
+    return f"eval: {protocol}{counted}"
 
 
 def write_plots(run_dir: Path) -> None:
@@ -147,7 +160,7 @@ def write_plots(run_dir: Path) -> None:
     except Exception as error:  # noqa: BLE001 (the run's results are written; a plot must not turn it into a failure)
         print(f"warning: no plots: {type(error).__name__}: {error}", file=sys.stderr)
         return
-    print(f"  plots and report       {result.report_md} ({len(result.figures)} figures)")
+    print(f"  {'plots and report':40s} {result.report_md} ({len(result.figures)} figures)")
 
 
 def scale_added(arguments: list[str]) -> list[str]:

@@ -28,6 +28,7 @@ import dataclasses
 import json
 import math
 import signal
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -157,17 +158,19 @@ class Trial:
             parts = self._build()
             self._start(parts)
             first = parts.runs[0].state
-            desc = "train" if len(self.seeds) == 1 else f"train ×{len(self.seeds)}"
-            bar = tqdm(total=self.experiment.iterations, initial=first.iteration, disable=not progress, desc=desc,
-                       unit="it")
+            bar = tqdm(total=self.experiment.iterations, initial=first.iteration, disable=not progress, unit="it",
+                       desc="train" if len(self.seeds) == 1 else f"train ×{len(self.seeds)}")
             with StopSignals(self.continue_command) as signals:
+                signals.finishing = first.iteration + 1 >= self.experiment.iterations  # before the last batch
                 for batch in parts.collector:
                     rows, stop = self._iteration(parts, batch, on_evaluation)
                     show_progress(bar, rows)
                     if self._after_iteration(parts, stop, signals, bar):
                         break
-            bar.close()
-            summaries = self._finish(parts, revision, absolute_metric)
+                    signals.finishing = first.iteration + 1 >= self.experiment.iterations
+                bar.close()
+                signals.finishing = True
+                summaries = self._finish(parts, revision, absolute_metric, progress)
             return summaries[0] if len(summaries) == 1 else summaries
 
     def _folders(self) -> list[Path]:
@@ -321,9 +324,8 @@ class Trial:
         for replica, run in enumerate(parts.runs):
             save_policy(run.run_dir, self._policy_state(parts, replica))
 
-    def _finish(self, parts: Parts, revision: str, absolute_metric: bool) -> list[dict[str, Any]]:
-        """The last checkpoint (``keep_checkpoint=all``), then each seed's ``policy.pt`` and ``summary.json`` from its
-        final evaluation."""
+    def _finish(self, parts: Parts, revision: str, absolute_metric: bool, progress: bool) -> list[dict[str, Any]]:
+        """The last checkpoint (``keep_checkpoint=all``), then each seed's ``policy.pt`` and ``summary.json``."""
         exp = self.experiment
         if exp.keep_checkpoint == "all":
             self._checkpoint(parts)
@@ -331,7 +333,7 @@ class Trial:
         summaries = []
         for replica, run in enumerate(parts.runs):
             with parts.learners.use(replica):
-                summaries.append(self._conclude(parts, replica, revision, absolute_metric))
+                summaries.append(self._conclude(parts, replica, revision, absolute_metric, progress))
             run.history("finished", iteration=run.state.iteration)
         if exp.keep_checkpoint == "final":  # the replay buffer and optimiser state are gigabytes over a sweep
             drop_training_state(self.state_dir)
@@ -339,7 +341,7 @@ class Trial:
             append_history(self.state_dir, "finished", iteration=parts.runs[0].state.iteration)
         return summaries
 
-    def _conclude(self, parts: Parts, replica: int, revision: str, absolute_metric: bool) -> dict[str, Any]:
+    def _conclude(self, parts: Parts, replica: int, revision: str, absolute_metric: bool, progress: bool) -> dict:
         """Write a seed's ``policy.pt`` and ``summary.json`` (the last evaluation's metrics, or a final one); return
         the summary."""
         run = parts.runs[replica]
@@ -358,7 +360,7 @@ class Trial:
             **final,
             "seed": exp.seed,
             "eval_protocol": exp.protocol_summary(),
-            "absolute": self._absolute(parts, replica) if absolute_metric else None,
+            "absolute": self._absolute(parts, replica, progress) if absolute_metric else None,
             "iterations": state.iteration,
             "frames": frames,
             # Safety Gym's third figure: the cost paid over all of training per frame (world-step) collected.
@@ -372,7 +374,7 @@ class Trial:
                                                                                           default=str)))
         return summary
 
-    def _absolute(self, parts: Parts, replica: int) -> dict[str, Any] | None:
+    def _absolute(self, parts: Parts, replica: int, progress: bool) -> dict[str, Any] | None:
         """The best evaluation's policy (``policy.best.pt``) on ``ABSOLUTE_EPISODES`` times the evaluation's episodes,
         worlds of their own stream; None without an evaluation. Once training is over: it loads that policy."""
         run = parts.runs[replica]
@@ -380,6 +382,9 @@ class Trial:
         if best is None:
             return None
         exp = run.experiment
+        if progress:  # the one long step after the bar (2,560 worlds by default): say what it is
+            print(f"{f'seed {exp.seed}: ' * (len(parts.runs) > 1)}absolute metric: the best evaluation's policy "
+                  f"(iteration {best.iteration}) on {ABSOLUTE_EPISODES * exp.eval_episodes:,} worlds...", file=sys.stderr)
         save_policy(run.run_dir, best.policy, BEST_POLICY)
         learner = parts.learners.learner(replica)
         learner.load_policy_state_dict(best.policy)

@@ -66,6 +66,9 @@ class StopSignals:
     def __init__(self, continue_command: str | None = None) -> None:
         self.received: int | None = None
         self.continue_command = continue_command
+        # Set once no iteration is left to end at (the last one, the final evaluation and summary): a first Ctrl-C
+        # then lets the run finish, and says so.
+        self.finishing = False
         self._previous: dict[int, Any] = {}
 
     def __enter__(self) -> Self:
@@ -83,8 +86,9 @@ class StopSignals:
             signal.signal(signal.SIGINT, signal.SIG_DFL)
             os.kill(os.getpid(), signal.SIGINT)
         if signum == signal.SIGINT:
-            print("\nCtrl-C: checkpointing at the end of this iteration (Ctrl-C again to stop at once)",
-                  file=sys.stderr, flush=True)
+            print("\nCtrl-C: " + ("training is over; finishing the run's final evaluation and summary"
+                                  if self.finishing else "checkpointing at the end of this iteration")
+                  + " (Ctrl-C again to stop at once)", file=sys.stderr, flush=True)
         self.received = signum
 
     def __exit__(self, *exc: object) -> None:

@@ -186,7 +186,7 @@ def record_starts(run_dir: Path, config: dict[str, Any], runs: list[SeedRun], re
 
 def show_progress(bar: tqdm, rows: list[dict[str, float]]) -> None:
     """One iteration on the progress bar: frames over every seed, and the seeds' mean success and return."""
-    postfix: dict[str, Any] = {"frames": int(sum(row["frames"] for row in rows))}
+    postfix: dict[str, Any] = {"frames": f"{int(sum(row['frames'] for row in rows)):,}"}  # tqdm writes 20000 "2e+4"
     for key, label in (
         ("train/ego_success_rate", "train_success"), ("train/team_success_rate", "team_success"),
         ("train/return", "return"), ("eval/ego/success_rate", "eval_success"),
