@@ -58,3 +58,22 @@ def test_a_ctrl_c_in_the_last_iteration_or_the_final_evaluation_says_the_run_fin
         assert summary["iterations"] == 2 and summary["absolute"] is not None
         assert json.loads((tmp_path / phase / "run" / "summary.json").read_text())["iterations"] == 2
         assert "absolute metric: the best evaluation's policy (iteration 2) on 80 worlds..." in stderr
+
+
+def test_a_runs_report_names_it_as_the_user_does_not_by_the_machines_absolute_path(tmp_path, monkeypatch, runner):
+    import shutil
+
+    from sidewalk.report.document import write_report
+    from sidewalk.report.tables import Settings
+
+    cfg = compose(TINY)
+    run = tmp_path / "results" / "runs" / "mine"
+    Trial(validate(cfg), run, OmegaConf.to_container(cfg, resolve=True)).run(progress=False, absolute_metric=False)
+    monkeypatch.chdir(tmp_path)
+    report = write_report([run], run / "report", Settings(n_resamples=100)).report_md.read_text()
+    header = report.splitlines()[2]
+    assert "from `results/runs/mine`:" in header and str(tmp_path) not in report, header
+    assert "`..`" not in report
+    shutil.rmtree(run / "report")
+    monkeypatch.chdir(tmp_path.parent / tmp_path.name / "results")  # outside the run's parent: still relative there
+    assert "from `runs/mine`:" in write_report([run], run / "report", Settings(n_resamples=100)).report_md.read_text()

@@ -28,7 +28,15 @@ from sidewalk.report.conditions import (
 from sidewalk.report.crossplay import crossplay_sections, find_crossplay
 from sidewalk.report.figures import family_sections, paper_figure_section, trajectory_section
 from sidewalk.report.marl_eval import write_marl_eval
-from sidewalk.report.runs import Run, RunFolderError, Skipped, find_run_folders, load_run, shown_path
+from sidewalk.report.runs import (
+    Run,
+    RunFolderError,
+    Skipped,
+    find_run_folders,
+    load_run,
+    readable_path,
+    shown_path,
+)
 from sidewalk.report.tables import NumberLog, Settings, distinct_range, records_safety
 from sidewalk.run_folder import CONFIG, METRICS
 
@@ -108,7 +116,7 @@ def write_report(
         "# Sidewalk report",
         "",
         f"Generated {datetime.datetime.now().isoformat(timespec='seconds')} from "
-        + ", ".join(f"`{p}`" for p in paths)
+        + ", ".join(f"`{readable_path(p)}`" for p in paths)
         + f": {len(folders)} run folder(s), {len(runs)} used in {len(conditions)} condition(s), "
         f"{len(skipped)} skipped.",
         "",

@@ -181,6 +181,16 @@ def load_run(run_dir: Path, family: str | None = None) -> Run:
 
 
 def shown_path(path: Path, out: Path) -> str:
-    """``path`` relative to the report folder when that is shorter, so a moved report still reads well."""
+    """``path`` relative to the report folder when that is shorter and names a folder (a report inside its run
+    folder would read "``..``"), so a moved report still reads well; else as ``readable_path`` shows it."""
     relative = os.path.relpath(path.resolve(), out.resolve())
-    return relative if len(relative) < len(str(path)) else str(path)
+    named = any(part != os.pardir for part in Path(relative).parts)
+    return relative if named and len(relative) < len(str(path)) else readable_path(path)
+
+
+def readable_path(path: Path) -> str:
+    """``path`` relative to the current folder where it lies under it (``results/runs/...``, as the user typed it),
+    else as given: a report does not open with the machine's absolute paths."""
+    resolved = Path(path).resolve()
+    return str(resolved.relative_to(Path.cwd().resolve())) if resolved.is_relative_to(Path.cwd().resolve()) \
+        else str(path)
