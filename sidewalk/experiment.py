@@ -342,8 +342,7 @@ class Trial:
         return summaries
 
     def _conclude(self, parts: Parts, replica: int, revision: str, absolute_metric: bool, progress: bool) -> dict:
-        """Write a seed's ``policy.pt`` and ``summary.json`` (the last evaluation's metrics, or a final one); return
-        the summary."""
+        """Write a seed's ``policy.pt`` and ``summary.json`` (the last evaluation's metrics, or a final one)."""
         run = parts.runs[replica]
         exp, state = run.experiment, run.state
         save_policy(run.run_dir, self._policy_state(parts, replica))
