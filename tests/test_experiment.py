@@ -7,7 +7,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -34,11 +33,9 @@ TINY_DQN = [
 TINY = RUN + TINY_DQN
 
 
-def main_py(*overrides: str, timeout: float = 300, check: bool = True) -> subprocess.CompletedProcess:
-    result = subprocess.run(
-        [sys.executable, "runners/main.py", *overrides], cwd=ROOT, capture_output=True, text=True, timeout=timeout,
-        check=False,
-    )
+def main_py(processes, *overrides: str, timeout: float = 300, check: bool = True) -> subprocess.CompletedProcess:
+    """``python runners/main.py *overrides`` in a process of its own (forked after the imports: conftest.py)."""
+    result = processes.run("runners/main.py", *overrides, timeout=timeout)
     if check and result.returncode != 0:
         raise AssertionError(f"main.py failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
     return result
@@ -53,10 +50,10 @@ def history(run_dir: Path) -> list[dict]:
 
 
 @pytest.fixture(scope="module")
-def main_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
+def main_run(tmp_path_factory, processes) -> tuple[Path, subprocess.CompletedProcess]:
     """The tiny run made by runners/main.py in a process of its own, plots and all, and what it printed."""
     run = tmp_path_factory.mktemp("main") / "run"
-    return run, main_py(*TINY, "plots=true", f"hydra.run.dir={run}")
+    return run, main_py(processes, *TINY, "plots=true", f"hydra.run.dir={run}")
 
 
 def test_run_folder_contents(main_run):
@@ -103,17 +100,14 @@ CONTINUOUS_SETUP = [
     [(GRID_SETUP, signal.SIGKILL), (CONTINUOUS_SETUP, signal.SIGKILL), (GRID_SETUP, signal.SIGTERM)],
     ids=["dqn-grid-killed", "trpo-continuous-killed", "dqn-grid-preempted"],
 )
-def test_stopped_run_resumes_to_the_same_metrics(tmp_path, finished_run, setup, stop):
+def test_stopped_run_resumes_to_the_same_metrics(tmp_path, finished_run, processes, setup, stop):
     # SIGKILL: the run resumes from its last periodic checkpoint. SIGTERM (a scheduler's pre-emption): the run
     # writes a checkpoint at the end of the iteration it is in and exits with 128 + 15.
     overrides = [*RUN, "iterations=40", "checkpoint_every=5", "eval_every=10", *setup]
     whole = finished_run(overrides)
 
     stopped = tmp_path / "stopped"
-    process = subprocess.Popen(
-        [sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={stopped}"],
-        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )
+    process = processes.start("runners/main.py", *overrides, f"hydra.run.dir={stopped}")
     deadline = time.time() + 300
     while not (stopped / "checkpoint.pt").exists() and process.poll() is None and time.time() < deadline:
         time.sleep(0.02)
@@ -126,30 +120,31 @@ def test_stopped_run_resumes_to_the_same_metrics(tmp_path, finished_run, setup, 
         at = read_torch_file(stopped / "checkpoint.pt")["iteration"]
         assert len(pd.read_csv(stopped / "metrics.csv")) == at  # the metrics end where the checkpoint does
 
-    main_py(*overrides, f"hydra.run.dir={stopped}", "resume=true", timeout=600)
+    main_py(processes, *overrides, f"hydra.run.dir={stopped}", "resume=true", timeout=600)
     pd.testing.assert_frame_equal(metrics(stopped), metrics(whole))
     # The best evaluation's policy is in the checkpoint: the absolute metric is the uninterrupted run's.
     absolute = [json.loads((run / "summary.json").read_text())["absolute"] for run in (stopped, whole)]
     assert absolute[0] == absolute[1]
 
 
-def test_resume_refuses_another_config_naming_each_key(tmp_path, finished_run):
+def test_resume_refuses_another_config_naming_each_key(tmp_path, finished_run, processes):
     run = tmp_path / "run"
     shutil.copytree(finished_run([*TINY, "keep_checkpoint=all"]), run)
     config = (run / "config.yaml").read_text()
-    result = main_py(*TINY, "noise=0.2", "iterations=8", "resume=true", f"hydra.run.dir={run}", check=False)
+    result = main_py(processes, *TINY, "noise=0.2", "iterations=8", "resume=true", f"hydra.run.dir={run}",
+                     check=False)
     assert result.returncode == 2
     assert "noise: 0.0 -> 0.2" in result.stderr and "iterations: 12 -> 8" in result.stderr
     assert (run / "config.yaml").read_text() == config and len(history(run)) == 2  # nothing was touched
     # A new run into the folder is refused too: two runs never mix in one folder.
-    result = main_py(*TINY, f"hydra.run.dir={run}", check=False)
+    result = main_py(processes, *TINY, f"hydra.run.dir={run}", check=False)
     assert result.returncode == 2 and "already holds a run" in result.stderr
 
 
-def test_a_finished_run_extends_to_the_run_of_the_larger_budget(tmp_path, finished_run):
+def test_a_finished_run_extends_to_the_run_of_the_larger_budget(tmp_path, finished_run, processes):
     extended = tmp_path / "extended"
     shutil.copytree(finished_run([*TINY, "keep_checkpoint=all"]), extended)
-    main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={extended}")
+    main_py(processes, *TINY, "iterations=16", "resume=true", f"hydra.run.dir={extended}")
     pd.testing.assert_frame_equal(metrics(extended), metrics(finished_run([*TINY, "iterations=16"])))
     assert history(extended)[2] | {"time": None, "git_revision": None} == {
         "event": "resumed", "iterations": {"from": 12, "to": 16}, "time": None, "git_revision": None
@@ -157,28 +152,28 @@ def test_a_finished_run_extends_to_the_run_of_the_larger_budget(tmp_path, finish
     assert "iterations: 16" in (extended / "config.yaml").read_text()
 
 
-def test_a_corrupt_checkpoint_falls_back_to_the_previous_one(tmp_path, finished_run):
+def test_a_corrupt_checkpoint_falls_back_to_the_previous_one(tmp_path, finished_run, processes):
     finished = finished_run([*TINY, "keep_checkpoint=all"])  # checkpoints at 12, prev at 8
     run, both = tmp_path / "run", tmp_path / "both"
     shutil.copytree(finished, run)
     shutil.copytree(finished, both)
     data = (run / "checkpoint.pt").read_bytes()
     (run / "checkpoint.pt").write_bytes(data[: len(data) // 2])  # torn: the disk filled, the node died
-    result = main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={run}")
+    result = main_py(processes, *TINY, "iterations=16", "resume=true", f"hydra.run.dir={run}")
     assert "checkpoint.pt is unreadable" in result.stderr
     pd.testing.assert_frame_equal(metrics(run), metrics(finished_run([*TINY, "iterations=16"])))  # from 8, exactly
 
     for name in ("checkpoint.pt", "checkpoint.prev.pt"):
         (both / name).write_bytes(b"not a checkpoint")
-    result = main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={both}", check=False)
+    result = main_py(processes, *TINY, "iterations=16", "resume=true", f"hydra.run.dir={both}", check=False)
     assert result.returncode == 2 and "no readable checkpoint" in result.stderr  # refused before any compute
     assert "checkpoint.pt and checkpoint.prev.pt are unreadable" in result.stderr
 
 
-def test_a_finished_default_run_folder_is_small(tmp_path):
+def test_a_finished_default_run_folder_is_small(tmp_path, processes):
     # The default DQN's replay buffer alone is ~90 MB; a finished folder keeps the policy, metrics and plots.
     run = tmp_path / "run"
-    main_py("iterations=3", "eval_every=0", "eval_episodes=16", f"hydra.run.dir={run}")
+    main_py(processes, "iterations=3", "eval_every=0", "eval_episodes=16", f"hydra.run.dir={run}")
     size = sum(path.stat().st_size for path in run.rglob("*") if path.is_file())
     assert size < 5_000_000, size
     assert (run / "policy.pt").exists() and not (run / "checkpoint.pt").exists()
@@ -213,12 +208,12 @@ def test_a_diverged_learner_stops_the_run_and_keeps_the_last_good_checkpoint(tmp
     assert history(tmp_path)[-1]["event"] == "diverged"
 
 
-def test_resume_without_checkpoint_is_an_error(tmp_path, finished_run):
-    result = main_py(*TINY, f"hydra.run.dir={tmp_path / 'new'}", "resume=true", check=False)
+def test_resume_without_checkpoint_is_an_error(tmp_path, finished_run, processes):
+    result = main_py(processes, *TINY, f"hydra.run.dir={tmp_path / 'new'}", "resume=true", check=False)
     assert result.returncode == 2 and "resume=true" in result.stderr
     finished = tmp_path / "finished"
     shutil.copytree(finished_run(TINY), finished)  # keep_checkpoint=final: the state is gone after the run
-    result = main_py(*TINY, "iterations=16", "resume=true", f"hydra.run.dir={finished}", check=False)
+    result = main_py(processes, *TINY, "iterations=16", "resume=true", f"hydra.run.dir={finished}", check=False)
     assert result.returncode == 2 and "keep_checkpoint=all" in result.stderr
 
 
@@ -256,12 +251,13 @@ def test_what_resume_does_with_the_folder_it_finds(tmp_path):
 
 
 @pytest.mark.parametrize("launcher", ["basic", "joblib"])
-def test_a_failing_sweep_job_leaves_the_others_intact(tmp_path, launcher):
+def test_a_failing_sweep_job_leaves_the_others_intact(tmp_path, processes, launcher):
     sweep = tmp_path / "sweep"
     extra = ["hydra/launcher=joblib", "hydra.launcher.n_jobs=2"] if launcher == "joblib" else []
     # The second job's learner diverges at its first update (a valid config: only running it finds out): it fails,
     # the first completes. A config the checks refuse stops the sweep before any job (test_config.py).
-    result = main_py("-m", *TINY, "reward.c_step=-0.01,-1e38", f"hydra.sweep.dir={sweep}", *extra, check=False)
+    result = main_py(processes, "-m", *TINY, "reward.c_step=-0.01,-1e38", f"hydra.sweep.dir={sweep}", *extra,
+                     check=False)
     assert result.returncode != 0
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir() and not p.name.startswith("."))
     assert len(jobs) == 2
@@ -271,11 +267,11 @@ def test_a_failing_sweep_job_leaves_the_others_intact(tmp_path, launcher):
     assert not (bad / "summary.json").exists()
 
 
-def test_submitit_local_sweep(tmp_path):
+def test_submitit_local_sweep(tmp_path, processes):
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     sweep = tmp_path / "sweep"
-    main_py("-m", *TINY, "iterations=4", "seed=0,1", "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}",
-            timeout=600)
+    main_py(processes, "-m", *TINY, "iterations=4", "seed=0,1", "hydra/launcher=submitit_local",
+            f"hydra.sweep.dir={sweep}", timeout=600)
     summaries = sorted(sweep.rglob("summary.json"))
     assert [json.loads(p.read_text())["seed"] for p in summaries] == [0, 1]
 
