@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -156,9 +154,9 @@ def test_the_protocol_bounds_fit_each_scenario_s_walls(overrides, expected):
         (["eval=sometimes"], "error: In 'config': Could not find 'eval/sometimes'; valid: nominal, perturbed"),
     ],
 )
-def test_a_bad_protocol_is_one_error_line_before_any_compute(tmp_path, overrides, message):
-    result = subprocess.run([sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={tmp_path / 'run'}"],
-                            cwd=ROOT, capture_output=True, text=True, timeout=120, check=False)
+def test_a_bad_protocol_is_one_error_line_before_any_compute(tmp_path, processes, overrides, message):
+    # A process of its own, forked after the imports (conftest.py), as `python runners/main.py ...` runs it.
+    result = processes.run("runners/main.py", *overrides, f"hydra.run.dir={tmp_path / 'run'}", timeout=120)
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [result.stderr.strip()]  # one line
     assert result.stderr.startswith(message), result.stderr
