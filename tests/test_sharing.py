@@ -39,11 +39,6 @@ TINY = [
 ]
 
 
-def run_py(script: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, script, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout,
-                          check=False)
-
-
 class RunsCommand:
     """Pickled, it makes ``torch.load(weights_only=False)`` run a shell command: here one that writes a marker."""
 
@@ -100,17 +95,17 @@ def test_a_policy_file_that_carries_code_is_refused_by_every_reader_and_nothing_
     assert not marker.exists()
 
 
-def test_a_partner_policy_file_that_carries_code_is_refused_and_nothing_runs(shared_run, tmp_path):
+def test_a_partner_policy_file_that_carries_code_is_refused_and_nothing_runs(shared_run, tmp_path, processes):
     run, marker = poisoned_copy(shared_run, tmp_path, "policy.pt")
-    result = run_py("runners/main.py", *TINY, "iterations=2", "opponent=policy", f"opponent.path={run}",
+    result = processes.run("runners/main.py", *TINY, "iterations=2", "opponent=policy", f"opponent.path={run}",
                     f"hydra.run.dir={tmp_path / 'partnered'}")
     one_error_line(result, str(run / "policy.pt"), "posix.system")
     assert not marker.exists()
 
 
-def test_a_checkpoint_that_carries_code_is_refused_on_resume_and_nothing_runs(shared_run, tmp_path):
+def test_a_checkpoint_that_carries_code_is_refused_on_resume_and_nothing_runs(shared_run, tmp_path, processes):
     run, marker = poisoned_copy(shared_run, tmp_path, "checkpoint.pt")
-    result = run_py("runners/main.py", *TINY, "iterations=12", "keep_checkpoint=all", "resume=true",
+    result = processes.run("runners/main.py", *TINY, "iterations=12", "keep_checkpoint=all", "resume=true",
                     f"hydra.run.dir={run}")
     one_error_line(result, str(run / "checkpoint.pt"), "posix.system")
     assert not marker.exists()
@@ -129,31 +124,30 @@ def test_every_file_a_run_writes_reads_back_without_unpickling_objects(shared_ru
         read_torch_file(torn)
 
 
-def test_a_missing_or_corrupt_partner_is_one_error_line(shared_run, tmp_path):
-    missing = run_py("runners/main.py", *TINY, "iterations=2", "opponent=policy",
+def test_a_missing_or_corrupt_partner_is_one_error_line(shared_run, tmp_path, processes):
+    missing = processes.run("runners/main.py", *TINY, "iterations=2", "opponent=policy",
                      f"opponent.path={tmp_path / 'nowhere'}", f"hydra.run.dir={tmp_path / 'a'}")
     one_error_line(missing, str(tmp_path / "nowhere"))
     run = tmp_path / "corrupt"
     shutil.copytree(shared_run, run)
     (run / "policy.pt").write_bytes(b"not a torch file")
-    corrupt = run_py("runners/main.py", *TINY, "iterations=2", "opponent=policy", f"opponent.path={run}",
-                     f"hydra.run.dir={tmp_path / 'b'}")
+    corrupt = processes.run("runners/main.py", *TINY, "iterations=2", "opponent=policy", f"opponent.path={run}",
+                            f"hydra.run.dir={tmp_path / 'b'}")
     one_error_line(corrupt, str(run / "policy.pt"), "unreadable")
     assert missing.returncode == corrupt.returncode == 2
 
 
-def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_one_leaves_no_lock(tmp_path):
+def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_one_leaves_no_lock(tmp_path, processes):
     run = tmp_path / "run"
     overrides = [*TINY, "iterations=40", f"hydra.run.dir={run}"]
-    first = subprocess.Popen([sys.executable, "runners/main.py", *overrides], cwd=ROOT,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    first = processes.start("runners/main.py", *overrides)  # a process of its own: forked, not started (conftest.py)
     try:
         deadline = time.time() + 300
         while not (run / "checkpoint.pt").exists() and first.poll() is None and time.time() < deadline:
             time.sleep(0.02)
         first.send_signal(signal.SIGSTOP)  # paused, still holding the folder, however long the second takes
         assert first.poll() is None, "the first run ended before the second could ask for its folder"
-        second = run_py("runners/main.py", *overrides, "resume=true")
+        second = processes.run("runners/main.py", *overrides, "resume=true")
         one_error_line(second, f"pid {first.pid}", "in use")
         assert second.returncode == 2
         with pytest.raises(FolderInUse, match=f"pid {first.pid}"), writer_lock(run):  # the library's callers too
@@ -161,7 +155,7 @@ def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_one_leaves_no
     finally:
         first.kill()  # SIGKILL: no handler runs, the kernel drops the lock
         first.wait()
-    resumed = run_py("runners/main.py", *overrides, "resume=true", timeout=600)  # at once: no stale lock
+    resumed = processes.run("runners/main.py", *overrides, "resume=true", timeout=600)  # at once: no stale lock
     assert resumed.returncode == 0, resumed.stderr
     assert events(run)[0] == "started" and events(run)[-2:] == ["resumed", "finished"]
 
@@ -170,17 +164,22 @@ def events(folder: Path) -> list[str]:
     return [json.loads(line)["event"] for line in (folder / "history.jsonl").read_text().splitlines()]
 
 
-def ctrl_c_once(arguments: list[str], written: Path, pattern: str) -> tuple[int, str]:
+def ctrl_c_once(processes, arguments: list[str], written: Path, pattern: str) -> tuple[int, str]:
     """Start ``runners/main.py`` with ``arguments``, send Ctrl-C once ``written`` holds a file matching ``pattern``;
     its exit status and stderr."""
-    process = subprocess.Popen([sys.executable, "runners/main.py", *arguments],
-                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    process = processes.start("runners/main.py", *arguments)
     deadline = time.time() + 300
     while not list(written.glob(pattern)) and process.poll() is None and time.time() < deadline:
         time.sleep(0.02)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=300)
     return process.returncode, stderr
+
+
+def run_printed(processes, command: list[str]) -> subprocess.CompletedProcess:
+    """The printed command run as typed: ``python runners/main.py ...`` (its process forked, as the others here)."""
+    assert command[:2] == [sys.executable, "runners/main.py"], command
+    return processes.run(*command[1:], timeout=600)
 
 
 def printed_command(stderr: str) -> list[str]:
@@ -191,12 +190,13 @@ def printed_command(stderr: str) -> list[str]:
 
 
 def test_ctrl_c_checkpoints_exits_130_and_prints_the_command_that_resumes_to_the_uninterrupted_metrics(
-    tmp_path, finished_run
+    tmp_path, finished_run, processes
 ):
     overrides = [*TINY, "iterations=40", "checkpoint_every=5", "eval_every=10", "noise=0.1"]
     whole = finished_run(overrides)
     # A folder named by the time it starts, as the default one is: the same command again would start another.
-    returncode, stderr = ctrl_c_once([*overrides, f"hydra.run.dir={tmp_path}/runs/${{now:%Y-%m-%d_%H-%M-%S-%f}}"],
+    returncode, stderr = ctrl_c_once(processes,
+                                     [*overrides, f"hydra.run.dir={tmp_path}/runs/${{now:%Y-%m-%d_%H-%M-%S-%f}}"],
                                      tmp_path, "runs/*/checkpoint.pt")
     assert returncode == 130, stderr
     assert "SIGINT received: checkpointed at iteration" in stderr and "Traceback" not in stderr
@@ -205,7 +205,7 @@ def test_ctrl_c_checkpoints_exits_130_and_prints_the_command_that_resumes_to_the
     assert len(pd.read_csv(stopped / "metrics.csv")) == at < 40
     command = printed_command(stderr)
     assert f"hydra.run.dir={stopped}" in command and command[-1] == "resume=true"
-    resumed = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
+    resumed = run_printed(processes, command)
     assert resumed.returncode == 0, resumed.stderr
     assert [path.name for path in tmp_path.glob("runs/*")] == [stopped.name]  # no second folder
     assert "plots and report" not in resumed.stdout and not (stopped / "report").exists()  # plots=false
@@ -213,18 +213,19 @@ def test_ctrl_c_checkpoints_exits_130_and_prints_the_command_that_resumes_to_the
                                   pd.read_csv(whole / "metrics.csv").drop(columns=WALL_CLOCK))
 
 
-def test_an_interrupted_sweep_of_groups_continues_with_the_one_command_it_prints(tmp_path):
+def test_an_interrupted_sweep_of_groups_continues_with_the_one_command_it_prints(tmp_path, processes):
     # Ctrl-C in the second of three jobs (each a group of two seeds): the first has finished, the second checkpoints,
     # the third never starts. The printed command skips the first, resumes the second and starts the third.
     overrides = [*TINY, "iterations=12", "checkpoint_every=2", "replicas=2", "noise=0,0.05,0.1"]
-    returncode, stderr = ctrl_c_once(["-m", *overrides, f"hydra.sweep.dir={tmp_path}/${{now:%Y-%m-%d_%H-%M-%S-%f}}"],
+    returncode, stderr = ctrl_c_once(processes,
+                                     ["-m", *overrides, f"hydra.sweep.dir={tmp_path}/${{now:%Y-%m-%d_%H-%M-%S-%f}}"],
                                      tmp_path, "*/1_*/.group/checkpoint.pt")  # a folder named as the default's
     assert returncode == 130, stderr
     (sweep,) = tmp_path.iterdir()
     assert [job.name[0] for job in sorted(sweep.glob("[0-9]_*"))] == ["0", "1"]
     command = printed_command(stderr)
     assert "-m" in command and f"hydra.sweep.dir={sweep}" in command and command[-1] == "resume=true"
-    continued = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
+    continued = run_printed(processes, command)
     assert continued.returncode == 0, continued.stderr
     first, second, third = sorted(sweep.glob("[0-9]_*"))
     assert events(first / ".group") == ["started", "finished"]  # skipped, not trained again
@@ -263,14 +264,13 @@ with StopSignals("python runners/main.py hydra.run.dir=results/runs/mine resume=
         ("iterations=abc", "iterations=abc: Value 'abc' of type 'str' could not be converted to Integer", True),
     ],
 )
-def test_a_config_hydra_cannot_compose_is_one_error_line_and_a_traceback_only_when_asked(tmp_path, override, expected,
-                                                                                         traceback):
-    result = run_py("runners/main.py", override, f"hydra.run.dir={tmp_path / 'run'}")
+def test_a_config_hydra_cannot_compose_is_one_error_line_and_a_traceback_only_when_asked(tmp_path, processes, override,
+                                                                                         expected, traceback):
+    result = processes.run("runners/main.py", override, f"hydra.run.dir={tmp_path / 'run'}")
     one_error_line(result, expected)
     assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "run").exists()  # nothing was written
     if traceback:  # one branch of main.py's cli() for every kind of error: asked once
-        asked = subprocess.run([sys.executable, "runners/main.py", override, f"hydra.run.dir={tmp_path / 'run'}"],
-                               cwd=ROOT, capture_output=True, text=True, timeout=300, check=False,
-                               env={**os.environ, "HYDRA_FULL_ERROR": "1"})
+        asked = processes.run("runners/main.py", override, f"hydra.run.dir={tmp_path / 'run'}", timeout=300,
+                              env={**os.environ, "HYDRA_FULL_ERROR": "1"})
         assert "Traceback" in asked.stderr and asked.returncode != 0
