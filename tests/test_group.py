@@ -10,7 +10,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -174,17 +173,17 @@ def test_the_accelerator_map_equals_the_cpu_loop(unit):
     torch.testing.assert_close(lone(x[2]), gradients["forward_looped"][0][2])
 
 
-def main_py(*overrides: str, timeout: float = 600, check: bool = True) -> subprocess.CompletedProcess:
-    result = subprocess.run([sys.executable, "runners/main.py", *overrides], cwd=ROOT, capture_output=True,
-                            text=True, timeout=timeout, check=False)  # the caller decides what a failure means
+def main_py(processes, *overrides: str, timeout: float = 600, check: bool = True) -> subprocess.CompletedProcess:
+    """``python runners/main.py *overrides`` in a process of its own (forked after the imports: conftest.py)."""
+    result = processes.run("runners/main.py", *overrides, timeout=timeout)  # the caller decides what a failure means
     if check and result.returncode != 0:
         raise AssertionError(f"main.py failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
     return result
 
 
-def test_replica_folders_are_ordinary_run_folders(tmp_path):
+def test_replica_folders_are_ordinary_run_folders(tmp_path, processes):
     group, lone = tmp_path / "group", tmp_path / "lone"
-    main_py(*SHORT, *DQN_GRID, "seed=1", "replicas=2", f"hydra.run.dir={group}")
+    main_py(processes, *SHORT, *DQN_GRID, "seed=1", "replicas=2", f"hydra.run.dir={group}")
     cfg = compose_config([*SHORT, *DQN_GRID, "seed=2"])  # the lone run, trained in this process as main.py would
     Trial(validate(cfg), lone, OmegaConf.to_container(cfg, resolve=True)).run(progress=False)
     assert (group / GROUP_DIR / "config.yaml").exists() and not (group / GROUP_DIR / "checkpoint.pt").exists()
@@ -238,13 +237,12 @@ def test_a_command_that_needs_one_run_names_a_group_folders_seeds(tmp_path, caps
 
 
 @pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGTERM], ids=["killed", "preempted"])
-def test_a_stopped_group_resumes_to_the_same_metrics(tmp_path, finished_run, stop):
+def test_a_stopped_group_resumes_to_the_same_metrics(tmp_path, finished_run, processes, stop):
     overrides = [*SHORT, *TRPO_CONTINUOUS, "iterations=12", "checkpoint_every=3", "eval_every=6", "replicas=2",
                  "plots=false"]
     whole = finished_run(overrides)
     stopped = tmp_path / "stopped"
-    process = subprocess.Popen([sys.executable, "runners/main.py", *overrides, f"hydra.run.dir={stopped}"],
-                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    process = processes.start("runners/main.py", *overrides, f"hydra.run.dir={stopped}")
     deadline = time.time() + 300
     while not (stopped / GROUP_DIR / "checkpoint.pt").exists() and process.poll() is None and time.time() < deadline:
         time.sleep(0.02)
@@ -256,12 +254,12 @@ def test_a_stopped_group_resumes_to_the_same_metrics(tmp_path, finished_run, sto
         assert returncode == 128 + signal.SIGTERM
         at = read_torch_file(stopped / GROUP_DIR / "checkpoint.pt")["iteration"]
         assert len(pd.read_csv(replica_dir(stopped, 1) / "metrics.csv")) == at
-    main_py(*overrides, f"hydra.run.dir={stopped}", "resume=true")
+    main_py(processes, *overrides, f"hydra.run.dir={stopped}", "resume=true")
     for seed in (0, 1):
         pd.testing.assert_frame_equal(metrics(replica_dir(stopped, seed)), metrics(replica_dir(whole, seed)))
 
 
-def test_bad_replicas_is_one_error_line(tmp_path):
-    result = main_py(*SHORT, "replicas=0", f"hydra.run.dir={tmp_path / 'run'}", check=False)
+def test_bad_replicas_is_one_error_line(tmp_path, processes):
+    result = main_py(processes, *SHORT, "replicas=0", f"hydra.run.dir={tmp_path / 'run'}", check=False)
     assert result.returncode == 2 and result.stderr.strip().startswith("error: replicas=0")
     assert len(result.stderr.strip().splitlines()) == 1 and not (tmp_path / "run" / "seed0").exists()
