@@ -8,8 +8,6 @@ import itertools
 import json
 import math
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -485,29 +483,16 @@ def test_report_cli_names_bad_paths_and_options(tmp_path, capsys, runner):
 
 
 @pytest.fixture(scope="module")
-def tiny_sweep(tmp_path_factory) -> Path:
+def tiny_sweep(tmp_path_factory, processes) -> Path:
     sweep = tmp_path_factory.mktemp("sweep") / "tiny"
-    result = subprocess.run(
-        [sys.executable, "runners/main.py", *TINY_SWEEP, f"hydra.sweep.dir={sweep}"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-        check=False,
-    )
+    # A process of its own, forked after the imports (conftest.py), as `python runners/main.py ...` runs it.
+    result = processes.run("runners/main.py", *TINY_SWEEP, f"hydra.sweep.dir={sweep}", timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
     return sweep
 
 
-def test_report_on_a_real_two_seed_sweep(tiny_sweep, tmp_path):
-    result = subprocess.run(
-        [sys.executable, "runners/report.py", str(tiny_sweep), "--out", str(tmp_path / "out")],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
+def test_report_on_a_real_two_seed_sweep(tiny_sweep, tmp_path, processes):
+    result = processes.run("runners/report.py", str(tiny_sweep), "--out", str(tmp_path / "out"), timeout=120)
     assert result.returncode == 0, result.stderr
     assert "report: " in result.stderr and result.stdout == ""  # progress on stderr only
     figures = {p.name for p in (tmp_path / "out" / "figures").iterdir()}
