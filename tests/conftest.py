@@ -81,14 +81,13 @@ def one_thread():
     torch.set_num_threads(previous)
 
 
-# The fork server behind ``processes``: it imports what runners/main.py imports and computes nothing (a process that ran
-# no torch kernel forks safely); on each request it forks a child that runs a script of runners/ as `python <script>`
-# would, from `if __name__ == "__main__"` on. Requests on stdin, one JSON line each; replies on the pipe whose file
-# descriptor is its argument.
+# A fork server: it runs the code of its second argument (imports) and computes nothing (a process that ran no torch
+# kernel forks safely); on each request it forks a child that runs a script as `python <script>` would, from
+# `if __name__ == "__main__"` on. Requests on stdin, one JSON line each; replies on the pipe whose file descriptor is
+# its first argument.
 FORK_SERVER = """
 import atexit, json, os, runpy, signal, sys, threading, traceback
-runpy.run_path("runners/main.py", run_name="preloaded")  # its imports, without its cli()
-import sidewalk.experiment, sidewalk.stops, sidewalk.trial_state, sidewalk.report.document  # train()'s own
+exec(sys.argv[2])
 replies = os.fdopen(int(sys.argv[1]), "w", buffering=1)
 
 def child(request):
@@ -172,16 +171,25 @@ class ForkedProcess:
         return self.stdout_file.read_text(), self.stderr_file.read_text()
 
 
-class ForkServer:
-    """Starts the scripts of runners/ as processes forked from one that has imported what runners/main.py imports."""
+# What runners/main.py imports, without running its cli(), and what its train() imports.
+MAIN_IMPORTS = """
+runpy.run_path("runners/main.py", run_name="preloaded")
+import sidewalk.experiment, sidewalk.stops, sidewalk.trial_state, sidewalk.report.document
+"""
 
-    def __init__(self, folder: Path) -> None:
-        self.folder, self.started = folder, 0
+
+class ForkServer:
+    """Starts scripts as processes forked from one that has run ``preload`` (by default: runners/main.py's imports),
+    with ``python`` in ``cwd`` (the children's defaults too)."""
+
+    def __init__(self, folder: Path, preload: str = MAIN_IMPORTS, python: Path | str = sys.executable,
+                 cwd: Path = ROOT, env: dict | None = None) -> None:
+        self.folder, self.started, self.cwd, self.env = folder, 0, cwd, env
         replies, reply_end = os.pipe()
         self.log = folder / "server.log"
         with open(self.log, "w") as log:
-            self.server = subprocess.Popen([sys.executable, "-c", FORK_SERVER, str(reply_end)], cwd=ROOT,
-                                           stdin=subprocess.PIPE, stdout=log, stderr=log, text=True,
+            self.server = subprocess.Popen([str(python), "-c", FORK_SERVER, str(reply_end), preload], cwd=cwd,
+                                           env=self.env, stdin=subprocess.PIPE, stdout=log, stderr=log, text=True,
                                            pass_fds=(reply_end,))
         os.close(reply_end)
         self.replies = os.fdopen(replies)
@@ -198,18 +206,18 @@ class ForkServer:
             raise RuntimeError(f"the fork server ended:\n{self.log.read_text()[-3000:]}")
         return json.loads(line)
 
-    def start(self, script: str, *arguments: str, cwd: Path = ROOT, env: dict | None = None) -> ForkedProcess:
-        """``subprocess.Popen([sys.executable, script, *arguments], cwd=cwd, env=env)`` (``script`` relative to the
-        repository), its standard output and error kept in files."""
+    def start(self, script: str, *arguments: str, cwd: Path | None = None, env: dict | None = None) -> ForkedProcess:
+        """``subprocess.Popen([python, script, *arguments], cwd=cwd, env=env)`` (``script`` relative to ``cwd``;
+        by default the server's, and the server's environment or else this process's now), its output kept in files."""
         self.started += 1
         stdout, stderr = self.folder / f"{self.started}.out", self.folder / f"{self.started}.err"
-        reply = self.ask({"op": "start", "script": script, "arguments": list(arguments), "cwd": str(cwd),
-                          "env": dict(os.environ if env is None else env), "stdout": str(stdout),
-                          "stderr": str(stderr)})
+        env = env if env is not None else self.env if self.env is not None else os.environ
+        reply = self.ask({"op": "start", "script": script, "arguments": list(arguments),
+                          "cwd": str(cwd or self.cwd), "env": dict(env), "stdout": str(stdout), "stderr": str(stderr)})
         return ForkedProcess(self, reply["pid"], [script, *arguments], stdout, stderr)
 
     def run(self, script: str, *arguments: str, timeout: float = 600, **options) -> subprocess.CompletedProcess:
-        """``subprocess.run([sys.executable, script, *arguments], capture_output=True, text=True, timeout=timeout)``."""
+        """``subprocess.run([python, script, *arguments], capture_output=True, text=True, timeout=timeout)``."""
         process = self.start(script, *arguments, **options)
         stdout, stderr = process.communicate(timeout)
         return subprocess.CompletedProcess(process.args, process.returncode, stdout, stderr)
@@ -227,3 +235,10 @@ def processes(tmp_path_factory):
     server = ForkServer(tmp_path_factory.mktemp("processes"))
     yield server
     server.close()
+
+
+@pytest.fixture(scope="session")
+def fork_server() -> type[ForkServer]:
+    """``ForkServer`` for a test module's own server (another python, other imports), without importing conftest.py
+    (which a test's subprocess importing the module may lack the packages for)."""
+    return ForkServer
