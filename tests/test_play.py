@@ -93,12 +93,20 @@ def play(page, server, press) -> int:
     return steps
 
 
+def opened(browser, server, before=None):
+    """A new page on ``server``, once it shows the world's first frame; ``before(page)`` runs before it loads."""
+    page = browser.new_page()
+    if before is not None:
+        before(page)
+    page.goto(server.url)
+    page.wait_for_selector("#frame[src^='data:image/png']")
+    return page
+
+
 @needs_chromium
 def test_a_grid_episode_played_by_keys_reaches_the_goal_and_is_recorded(serve, browser):
     server = serve("opponent=dijkstra")
-    page = browser.new_page()
-    page.goto(server.url)
-    page.wait_for_selector("#frame[src^='data:image/png']")
+    page = opened(browser, server)
     assert "against dijkstra" in page.inner_text("#about")
     steps = play(page, server, lambda info, _: page.keyboard.press(grid_move(info)))
     assert page.inner_text("#outcome") == "reached the goal"
@@ -112,9 +120,7 @@ def test_a_grid_episode_played_by_keys_reaches_the_goal_and_is_recorded(serve, b
 @needs_chromium
 def test_a_continuous_episode_played_by_held_keys_reaches_the_goal_and_is_recorded(serve, browser):
     server = serve("env=continuous", "opponent=prm")
-    page = browser.new_page()
-    page.goto(server.url)
-    page.wait_for_selector("#frame[src^='data:image/png']")
+    page = opened(browser, server)
     held: set[str] = set()
 
     def press(info, steps):
@@ -138,9 +144,7 @@ def test_a_continuous_episode_played_by_held_keys_reaches_the_goal_and_is_record
 @needs_chromium
 def test_pause_holds_the_game_restart_starts_the_next_world_and_a_held_arrow_walks_on(serve, browser):
     server = serve("opponent=dijkstra", record=False)
-    page = browser.new_page()
-    page.goto(server.url)
-    page.wait_for_selector("#frame[src^='data:image/png']")
+    page = opened(browser, server)
     page.click("#pause")  # Start
     page.keyboard.press(" ")
     assert page.get_attribute("#status", "data-paused") == "true" and page.inner_text("#pause") == "Resume (space)"
@@ -179,12 +183,13 @@ def pixels_of(patch: np.ndarray, rgb) -> int:
 @needs_chromium
 def test_the_page_loads_without_an_error_and_the_world_waits_for_the_person_to_start(serve, browser):
     server = serve("env=continuous", "opponent=prm", record=False)
-    page = browser.new_page()
     failures = []
-    page.on("response", lambda reply: reply.status >= 400 and failures.append(f"{reply.status} {reply.url}"))
-    page.on("console", lambda message: message.type == "error" and failures.append(message.text))
-    page.goto(server.url)
-    page.wait_for_selector("#frame[src^='data:image/png']")
+
+    def watch(page) -> None:
+        page.on("response", lambda reply: reply.status >= 400 and failures.append(f"{reply.status} {reply.url}"))
+        page.on("console", lambda message: message.type == "error" and failures.append(message.text))
+
+    page = opened(browser, server, before=watch)
     page.wait_for_timeout(1500)  # seven steps of the world's five a second
     assert server.game.steps == 0 and page.inner_text("#step") == "0"
     assert "to begin" in page.inner_text("#status") and page.inner_text("#pause") == "Start"
@@ -198,9 +203,7 @@ def test_the_page_loads_without_an_error_and_the_world_waits_for_the_person_to_s
 @needs_chromium
 def test_your_goal_shows_under_the_partner_at_the_start(serve, browser):
     server = serve("opponent=dijkstra", record=False)
-    page = browser.new_page()
-    page.goto(server.url)
-    page.wait_for_selector("#frame[src^='data:image/png']")
+    page = opened(browser, server)
     info, rows = server.game.info, server.game.face.view.core.rows
     assert (info["state"][1] == info["goal"][0]).all()  # the partner starts on your goal
     goal = grid_cell(frame_of(page), rows, info["goal"][0])
@@ -212,9 +215,7 @@ def test_your_goal_shows_under_the_partner_at_the_start(serve, browser):
 @needs_chromium
 def test_after_a_crash_the_agent_shows_crossed_out_and_space_keeps_the_outcome(serve, browser):
     server = serve("opponent=dijkstra", record=False)
-    page = browser.new_page()
-    page.goto(server.url)
-    page.wait_for_selector("#frame[src^='data:image/png']")
+    page = opened(browser, server)
     play(page, server, lambda info, _: page.keyboard.press("ArrowUp"))  # up the grid, into its wall
     assert page.inner_text("#outcome") == "hit a wall"
     ego = grid_cell(frame_of(page), server.game.face.view.core.rows, server.game.info["state"][0])
