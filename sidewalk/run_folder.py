@@ -476,7 +476,7 @@ def _no_readable_checkpoint(run_dir: Path, reasons: dict[str, str]) -> str:
     import shlex
 
     if not reasons:
-        return f"resume=true but {run_dir} holds no checkpoint"
+        return f"resume=true but {run_dir} holds no checkpoint.{_finished_hint(run_dir)}"
     if len(reasons) > 1 and len(set(reasons.values())) == 1:
         why = f"{' and '.join(reasons)} are unreadable ({next(iter(reasons.values()))})"
     else:

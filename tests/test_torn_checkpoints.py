@@ -95,3 +95,13 @@ def test_deleting_the_torn_checkpoints_as_advised_trains_the_run_again_from_the_
     columns = ["time_s", "frames_per_s"]
     pd.testing.assert_frame_equal(pd.read_csv(run / "metrics.csv").drop(columns=columns),
                                   pd.read_csv(finished / "metrics.csv").drop(columns=columns))
+
+
+def test_a_finished_run_without_checkpoints_says_how_to_keep_them(tmp_path):
+    from sidewalk.run_folder import POLICY, SUMMARY, RunFolderError, load_checkpoint
+
+    (tmp_path / SUMMARY).write_text("{}")
+    (tmp_path / POLICY).write_bytes(b"")
+    with pytest.raises(RunFolderError, match=r"holds no checkpoint\. The run finished with keep_checkpoint=final.*"
+                                             r"train it with keep_checkpoint=all"):
+        load_checkpoint(tmp_path)
