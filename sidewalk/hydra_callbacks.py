@@ -11,6 +11,7 @@ from typing import Any, NoReturn
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
+from sidewalk._hydra import BASIC_SWEEPER, basic_sweeper_points
 from sidewalk.config import Experiment, validate
 from sidewalk.loggers import check_logger
 from sidewalk.opponents.policy import check_partner_of
@@ -19,7 +20,6 @@ from sidewalk.run_folder import RunFolderError
 ERROR_FILE = "error.txt"
 # What the checks raise for a bad config or partner folder: refused, exit status 2, nothing computed.
 REFUSED = (ValueError, TypeError, FileNotFoundError, NotADirectoryError, RunFolderError)
-BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
 log = logging.getLogger(__name__)
 
 
@@ -43,19 +43,15 @@ def refuse(message: Any) -> NoReturn:
     raise SystemExit(2)
 
 
-def sweep_points(config: DictConfig) -> list[list[str]] | None:
-    """The overrides of every job the basic sweeper will launch (its ``params`` and the command line's, as it splits
-    them); None under another sweeper, which may pick its points as it goes."""
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+def multirun_points(config: DictConfig) -> list[list[str]] | None:
+    """The overrides of every job the basic sweeper will launch for the multirun ``config`` (its ``params`` and the
+    command line's, as it splits them); None under another sweeper, which may pick its points as it goes."""
     from hydra.core.global_hydra import GlobalHydra
-    from hydra.core.override_parser.overrides_parser import OverridesParser
 
     if config.hydra.sweeper.get("_target_") != BASIC_SWEEPER:
         return None
-    arguments = [f"{key}={value}" for key, value in (config.hydra.sweeper.get("params") or {}).items()]
-    arguments += list(config.hydra.overrides.task)
-    parser = OverridesParser.create(config_loader=GlobalHydra.instance().config_loader())
-    return BasicSweeper.split_arguments(parser.parse_overrides(arguments), max_batch_size=None)[0]
+    return basic_sweeper_points(config.hydra.sweeper.get("params"), list(config.hydra.overrides.task),
+                                GlobalHydra.instance().config_loader())
 
 
 class CheckFirst(Callback):
@@ -71,7 +67,7 @@ class CheckFirst(Callback):
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         from hydra.core.global_hydra import GlobalHydra
 
-        points = sweep_points(config)
+        points = multirun_points(config)
         if points is None:
             return
         loader = GlobalHydra.instance().config_loader()

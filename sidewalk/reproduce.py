@@ -40,6 +40,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from sidewalk._hydra import basic_sweeper_points
 from sidewalk.compose import compose
 from sidewalk.paths import CONFIG_DIR, RUNNERS_DIR
 from sidewalk.run_folder import CHECKPOINT, GROUP_DIR, PREVIOUS_CHECKPOINT, SUMMARY
@@ -78,13 +79,11 @@ class Job:
 
 def sweep_points(preset: str, overrides: Sequence[str] = (), conf_dir: Path | None = None) -> list[list[str]]:
     """The points of a preset's sweep, each a list of overrides, in the order ``runners/main.py -m`` runs them; a
-    key given in ``overrides`` is not swept (the command line wins over the preset's sweep, as in Hydra)."""
-    import itertools
-
+    key given in ``overrides`` is not swept (the command line wins over the preset's sweep, as in Hydra); the
+    points are split as Hydra's basic sweeper splits them."""
     cfg = compose([f"+experiment={preset}", *_composable(overrides)], conf_dir, hydra_config=True)
     given = {override.split("=", 1)[0].lstrip("+~") for override in overrides}
-    params = {key: str(value).split(",") for key, value in cfg.hydra.sweeper.params.items() if key not in given}
-    return [[f"{name}={value}" for name, value in zip(params, values)] for values in itertools.product(*params.values())]
+    return basic_sweeper_points({key: value for key, value in cfg.hydra.sweeper.params.items() if key not in given})
 
 
 def jobs(

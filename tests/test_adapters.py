@@ -1,0 +1,50 @@
+"""sidewalk's adapters over other libraries' internals (``_hydra``) still do their jobs on
+the installed versions: a failure here means the library moved what the adapter relies on, and the message names the
+library's version and what moved."""
+
+from __future__ import annotations
+
+import inspect
+
+import hydra
+import pytest
+
+from sidewalk._hydra import BASIC_SWEEPER, SPLIT_ARGUMENTS_PARAMETERS, basic_sweeper, basic_sweeper_points
+
+# ---- Hydra: the basic sweeper's split of a sweep into jobs -----------------------------------------------------------
+
+
+def test_hydra_s_basic_sweeper_is_where_the_adapter_imports_it_and_splits_as_it_calls_it():
+    sweeper = basic_sweeper()  # raises naming the Hydra version when the class or its split_arguments moved
+    assert f"{sweeper.__module__}.{sweeper.__qualname__}" == BASIC_SWEEPER, (
+        f"Hydra {hydra.__version__} moved its basic sweeper to {sweeper.__module__}; update sidewalk/_hydra.py")
+    parameters = tuple(inspect.signature(sweeper.split_arguments).parameters)
+    assert parameters == SPLIT_ARGUMENTS_PARAMETERS, (
+        f"Hydra {hydra.__version__}: BasicSweeper.split_arguments takes {parameters}; update sidewalk/_hydra.py")
+
+
+def test_a_config_s_default_sweeper_is_the_one_the_adapter_names():
+    from sidewalk.compose import compose
+
+    target = compose([], hydra_config=True).hydra.sweeper._target_
+    assert target == BASIC_SWEEPER, (
+        f"Hydra {hydra.__version__} names its default sweeper {target}; sidewalk/_hydra.py names {BASIC_SWEEPER}")
+
+
+def test_the_basic_sweeper_crosses_params_with_the_command_line_the_command_line_winning():
+    points = basic_sweeper_points({"a": "1,2", "b": "x"}, ["c=range(0,2)", "a=3"])
+    assert points == [["a=3", "b=x", "c=0"], ["a=3", "b=x", "c=1"]], (
+        f"Hydra {hydra.__version__}'s basic sweeper splits a sweep otherwise; check sidewalk/_hydra.py")
+    assert basic_sweeper_points(None) == [[]]
+    assert basic_sweeper_points({"noise": "0.0,0.5", "shield": "false,true"}) == [
+        ["noise=0.0", "shield=False"], ["noise=0.0", "shield=True"],
+        ["noise=0.5", "shield=False"], ["noise=0.5", "shield=True"],
+    ]
+
+
+def test_a_moved_split_is_named_with_the_hydra_version(monkeypatch):
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+
+    monkeypatch.setattr(BasicSweeper, "split_arguments", staticmethod(lambda overrides: []))
+    with pytest.raises(RuntimeError, match=rf"Hydra {hydra.__version__}: BasicSweeper.split_arguments takes"):
+        basic_sweeper_points({"a": "1,2"})
