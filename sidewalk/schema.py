@@ -16,6 +16,7 @@ from typing import Any, Optional
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
+from sidewalk._omegaconf import node_key
 from sidewalk.envs.grid import DiscreteParams
 from sidewalk.envs.rewards import RewardParams
 from sidewalk.envs.unicycle import ContinuousParams
@@ -158,14 +159,14 @@ def room_side(*, _parent_: Any, _node_: Any) -> float | int:
     """``${sidewalk.room:}``, the value of a room side in ``conf/env``: the side of the room the layout picks for its
     agents (the default room wherever it holds them, so no result changes), honouring the other side where the user
     gave it. The run's ``config.yaml`` records the number (configs are saved resolved)."""
-    from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
+    from sidewalk.envs import core_class
 
-    env_cls = DiscreteSidewalkEnv if _parent_.domain == "discrete" else ContinuousSidewalkEnv
-    side = _node_._key()
+    env_cls = core_class(_parent_.domain)
+    side = node_key(_node_)
     given = {key: _parent_[key] for key in ("layout", "n_agents", "agent_radius_m", "goal_radius_m",
                                             "min_start_goal_m", "min_start_goal_cells") if key in _parent_}
     for other in env_cls.room_sides:
-        if other != side and not _parent_._get_node(other)._is_interpolation():
+        if other != side and not OmegaConf.is_interpolation(_parent_, other):
             given[other] = _parent_[other]
     try:
         return env_cls.with_room(given)[side]
@@ -198,7 +199,7 @@ def trained_jitter(*, _root_: Any, _node_: Any) -> float | int:
     eval_protocol = _root_.get("eval")
     if eval_protocol is None or not eval_protocol.get("train_alike", True) or draws_starts(_root_.env.layout):
         return 0
-    return eval_protocol.get(_node_._key(), 0)
+    return eval_protocol.get(node_key(_node_), 0)
 
 
 def within_walls(bound: float, *, _root_: Any, _node_: Any) -> float | int:
@@ -210,7 +211,7 @@ def within_walls(bound: float, *, _root_: Any, _node_: Any) -> float | int:
     from sidewalk.envs.layouts import grid_layout, plane_layout
     from sidewalk.envs.layouts.jitter import largest_grid_jitter, largest_plane_jitter
 
-    env, name = _root_.env, _node_._key()
+    env, name = _root_.env, node_key(_node_)
     if (env.domain == "discrete") != name.endswith("_rows") or draws_starts(env.layout):
         return bound  # the other domain's bound, or a scenario that draws its starts: not applied
     try:

@@ -1,4 +1,4 @@
-"""sidewalk's adapters over other libraries' internals (``_hydra``) still do their jobs on
+"""sidewalk's adapters over other libraries' internals (``_hydra``, ``_omegaconf``) still do their jobs on
 the installed versions: a failure here means the library moved what the adapter relies on, and the message names the
 library's version and what moved."""
 
@@ -7,9 +7,12 @@ from __future__ import annotations
 import inspect
 
 import hydra
+import omegaconf
 import pytest
+from omegaconf import OmegaConf
 
 from sidewalk._hydra import BASIC_SWEEPER, SPLIT_ARGUMENTS_PARAMETERS, basic_sweeper, basic_sweeper_points
+from sidewalk._omegaconf import node_key
 
 # ---- Hydra: the basic sweeper's split of a sweep into jobs -----------------------------------------------------------
 
@@ -48,3 +51,25 @@ def test_a_moved_split_is_named_with_the_hydra_version(monkeypatch):
     monkeypatch.setattr(BasicSweeper, "split_arguments", staticmethod(lambda overrides: []))
     with pytest.raises(RuntimeError, match=rf"Hydra {hydra.__version__}: BasicSweeper.split_arguments takes"):
         basic_sweeper_points({"a": "1,2"})
+
+
+# ---- OmegaConf: the key a resolver resolves --------------------------------------------------------------------------
+
+
+@pytest.fixture
+def key_resolver():
+    OmegaConf.register_new_resolver("test_adapters.key", lambda *, _node_: node_key(_node_))
+    yield "test_adapters.key"
+    OmegaConf.clear_resolver("test_adapters.key")
+
+
+def test_a_resolver_learns_the_key_it_resolves(key_resolver):
+    cfg = OmegaConf.create({"env": {"width_m": f"${{{key_resolver}:}}", "rows": [f"${{{key_resolver}:}}"]}})
+    assert (cfg.env.width_m, cfg.env.rows[0]) == ("width_m", 0), (
+        f"OmegaConf {omegaconf.__version__}: a resolver's _node_._key() no longer returns its key; "
+        "update sidewalk/_omegaconf.py")
+
+
+def test_a_node_without_its_key_is_named_with_the_omegaconf_version():
+    with pytest.raises(RuntimeError, match=rf"OmegaConf {omegaconf.__version__}: object has no _key\(\)"):
+        node_key(object())
