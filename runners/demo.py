@@ -11,7 +11,7 @@ import time
 import torch
 from tqdm import tqdm
 
-from sidewalk.envs import AGENT_GROUP, ContinuousSidewalkEnv, DiscreteSidewalkEnv
+from sidewalk.envs import AGENT_GROUP, INFO_KEYS, ContinuousSidewalkEnv, DiscreteSidewalkEnv
 
 
 def main() -> None:
@@ -24,7 +24,7 @@ def main() -> None:
     torch.manual_seed(args.seed)
     for env in (DiscreteSidewalkEnv(args.num_envs, seed=args.seed), ContinuousSidewalkEnv(args.num_envs, seed=args.seed)):
         start, td = time.perf_counter(), env.reset()
-        outcomes = {key: torch.zeros(env.n_agents) for key in ("reached_goal", "collided_agent", "collided_wall", "timed_out")}
+        outcomes = {key: torch.zeros(env.n_agents) for key in INFO_KEYS}
         episodes = 0
         for _ in tqdm(range(args.steps), desc=type(env).__name__, leave=False):
             out, td = env.step_and_maybe_reset(env.rand_action(td))

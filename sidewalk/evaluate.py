@@ -44,7 +44,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-from sidewalk.envs.base import INFO_KEYS
+from sidewalk.envs.base import INFO_KEYS, crashed
 from sidewalk.social import SocialTally
 
 DEADLOCK_WINDOW = 30  # steps
@@ -293,7 +293,7 @@ class _EpisodeTally:
     def add_step(self, step: int, world: TensorDictBase, done: torch.Tensor) -> None:
         """Add step ``step`` (from 0), whose ``"world"`` entry is ``world`` and whose worlds ``done`` (B,) ended."""
         running = ~self.finished
-        was_active = ~torch.stack([self.final_info[k] for k in ("reached_goal", "collided_agent", "collided_wall")]).any(0)
+        was_active = ~(self.final_info["reached_goal"] | crashed(self.final_info))
         now = _positions(world)
         live = running.unsqueeze(-1)
         info = {key: world.get(("info", key)).squeeze(-1) for key in INFO_KEYS}
@@ -422,7 +422,7 @@ def distinct_rows(flat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 def _group_metrics(record: EpisodeRecord, agents: list[int]) -> dict[str, float]:
     """Rates and means over the given agents' episodes."""
     out = {name: float(record.info[key][:, agents].mean()) for name, key in RATE_OF.items()}
-    collided = record.info["collided_agent"][:, agents] | record.info["collided_wall"][:, agents]
+    collided = crashed(record.info)[:, agents]
     out["collision_rate"] = float(collided.mean())
     out["return"] = float(record.returns[:, agents].mean())
     out["cost"] = float(record.costs[:, agents].mean())
@@ -498,9 +498,7 @@ def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:
     if episodes == 0:
         return metrics
     reached = batch.get(("next", "world", "info", "reached_goal")).squeeze(-1)[done]  # (episodes, N)
-    collided = (
-        batch.get(("next", "world", "info", "collided_agent")) | batch.get(("next", "world", "info", "collided_wall"))
-    ).squeeze(-1)[done]
+    collided = crashed(batch.get(("next", "world", "info"))).squeeze(-1)[done]
     episode_reward = batch.get(("next", "episode_reward"), None)
     if episode_reward is None:  # self-play: every agent's own return, averaged over the agents
         episode_reward = batch.get(("next", "agents", "episode_reward")).mean(-2)

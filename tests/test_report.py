@@ -19,6 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from sidewalk.compose import compose as compose_project
 from sidewalk.config import validate
+from sidewalk.envs.base import INFO_KEYS
 from sidewalk.report.claims import TIE, above_zero, below_zero, check_claims
 from sidewalk.report.conditions import condition_config, group_conditions
 from sidewalk.report.document import write_report
@@ -626,7 +627,7 @@ def test_fig10_panel_titles_keep_to_their_panels(monkeypatch, tmp_path):
         steps, episodes = 20, len(outcomes)
         paths = np.stack(np.broadcast_arrays(np.linspace(0.3, 3.7, steps)[:, None, None], 1.5), -1)  # (T, 1, 1, 2)
         paths = np.repeat(np.repeat(paths, episodes, 1), 2, 2)  # (T, k, 2 agents, 2)
-        info = {key: np.array([[outcome == key] * 2 for outcome in outcomes]) for key, _ in figures.OUTCOMES}
+        info = {key: np.array([[outcome == key] * 2 for outcome in outcomes]) for key in INFO_KEYS}
         layout = SimpleNamespace(length_m=4.0, width_m=3.0, boxes=[], goals=[(3.7, 1.5), (0.3, 1.5)])
         replay_ = SimpleNamespace(record=SimpleNamespace(trajectories=paths, info=info, ego=0), layout=layout,
                                   domain="continuous", run=SimpleNamespace(seed=0), matches_summary=True)

@@ -123,7 +123,7 @@ def scripted(
 
 def prm_passes(overrides: Sequence[str], seeds: int = PRM_SEEDS) -> list[dict]:
     """The PRM agent against a still ego midway on the centre line and a straight-driving ego, one world per seed."""
-    from sidewalk.envs import ContinuousSidewalkEnv
+    from sidewalk.envs import ContinuousSidewalkEnv, crashed
     from sidewalk.views import EgoView
 
     experiment = _experiment("prm", "trpo", [*overrides, "noise=0"])
@@ -147,7 +147,7 @@ def prm_passes(overrides: Sequence[str], seeds: int = PRM_SEEDS) -> list[dict]:
             for step in range(params.max_steps):
                 td = view.step(policy(td))["next"]
                 info = td.get(("world", "info"))
-                if bool(info["reached_goal"][0, 1] | info["collided_agent"][0, 1] | info["collided_wall"][0, 1]):
+                if bool((info["reached_goal"] | crashed(info))[0, 1]):
                     break
             other = bool(info["reached_goal"][0, 1])
             other_arrived += other

@@ -1,6 +1,6 @@
 """Batched TorchRL environments of the Sidewalk Problem."""
 
-from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, SidewalkEnvBase
+from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, OUTCOME_WORDS, SidewalkEnvBase, crashed
 from sidewalk.envs.grid import ACTIONS, DiscreteParams, DiscreteSidewalkEnv
 from sidewalk.envs.layouts import GridLayout, PlaneLayout, sidewalk_grid, sidewalk_plane
 from sidewalk.envs.rewards import RewardParams
@@ -22,6 +22,7 @@ __all__ = [
     "AGENT_GROUP",
     "CORE_ENVS",
     "INFO_KEYS",
+    "OUTCOME_WORDS",
     "ContinuousParams",
     "ContinuousSidewalkEnv",
     "DiscreteParams",
@@ -31,6 +32,7 @@ __all__ = [
     "RewardParams",
     "SidewalkEnvBase",
     "core_class",
+    "crashed",
     "sidewalk_grid",
     "sidewalk_plane",
 ]

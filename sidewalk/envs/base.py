@@ -50,10 +50,18 @@ from sidewalk.envs.rewards import RewardParams, compose_reward
 AGENT_GROUP = "agents"
 # What ``render`` can return: an RGB array (no window: the worlds are drawn off-screen).
 RENDER_MODES = ("rgb_array",)
-INFO_KEYS = ("reached_goal", "collided_agent", "collided_wall", "timed_out")
+# Each agent's sticky outcome flags and their words, in the order an outcome is told (the first flag set).
+OUTCOME_WORDS = {"reached_goal": "reached the goal", "collided_agent": "hit another agent", "collided_wall": "hit a wall",
+                 "timed_out": "timed out"}
+INFO_KEYS = tuple(OUTCOME_WORDS)
 # What the per-step safety cost ("agents", "cost") counts (env.cost): collisions only, or near misses too.
 COSTS = ("collision", "near_miss")
 HUGE_PAGE_BYTES = 4 << 20  # NumPy advises huge pages for arrays from 4 MiB on
+
+
+def crashed(info: Any) -> Any:
+    """Per agent, whether it hit another agent or a wall, from its outcome flags (a dict or TensorDict of them)."""
+    return info["collided_agent"] | info["collided_wall"]
 
 
 def new_output(
@@ -375,7 +383,7 @@ class SidewalkEnvBase(EnvBase):
             active,
             reached_now,
             collided_now,
-            status["collided_wall"] | status["collided_agent"],
+            crashed(status),
             shaping_term,
             self._shaping_weight,
         )

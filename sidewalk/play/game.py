@@ -18,6 +18,7 @@ import gymnasium
 import numpy as np
 
 from sidewalk.config import LEARNER_PLAYS_ALL, Experiment
+from sidewalk.envs.base import OUTCOME_WORDS
 from sidewalk.interop.gymnasium import ENV_IDS
 from sidewalk.registry import OPPONENTS
 
@@ -166,10 +167,9 @@ class Game:
                 "done": self.done, "outcome": self.outcome(), "episode": self.episodes}
 
     def outcome(self) -> str:
-        """The ego's outcome in words: running, reached its goal, collided, timed out."""
+        """The ego's outcome in words (``OUTCOME_WORDS``), else running or episode over."""
         agents, ego = self.info["agents"], self.face.view.ego
-        for flag, words in (("reached_goal", "reached the goal"), ("collided_agent", "collided with the partner"),
-                            ("collided_wall", "hit a wall"), ("timed_out", "timed out")):
+        for flag, words in OUTCOME_WORDS.items():
             if bool(agents[flag][ego]):
                 return words
         return "episode over" if self.done else "running"

@@ -8,6 +8,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from sidewalk.envs.base import INFO_KEYS
+
 
 def rollout_run(run_dir: Path, episode: int) -> tuple[list[np.ndarray], str]:
     """Frames of evaluation episode ``episode`` of a run's final policy, and its outcome in words."""
@@ -144,10 +146,6 @@ def outcome(info: dict) -> str:
     """Each agent's outcome in words from its sticky info flags (one bool per agent)."""
     words = []
     for agent in range(len(next(iter(info.values())))):
-        flags = [
-            name
-            for name in ("reached_goal", "collided_agent", "collided_wall", "timed_out")
-            if bool(info[name][agent])
-        ]
+        flags = [name for name in INFO_KEYS if bool(info[name][agent])]
         words.append(f"agent{agent}: {flags[0] if flags else 'running'}")
     return ", ".join(words)

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from sidewalk.envs.base import OUTCOME_WORDS, crashed
 from sidewalk.report.checkpoints import Replay, replay, representative_run
 from sidewalk.report.conditions import (
     DOMAIN_ORDER,
@@ -203,13 +204,6 @@ TITLE_POINTS = 8  # a panel's title size
 # space between panels free, so a title wrapped to its panel does not run into its neighbour's.
 TITLE_CHARS_PER_INCH = 72 / (0.65 * TITLE_POINTS)
 
-OUTCOMES = (
-    ("reached_goal", "goal"),
-    ("collided_agent", "hit agent"),
-    ("collided_wall", "hit wall"),
-    ("timed_out", "timeout"),
-)
-
 
 def world_aspect(replay_: Replay) -> float:
     """The replayed world's length over its width as drawn: columns over rows of a grid, metres of a plane."""
@@ -225,10 +219,7 @@ def trajectory_columns(aspect: float) -> tuple[int, float]:
 
 
 def _outcome(record, world: int, agent: int) -> str:
-    for key, text in OUTCOMES:
-        if record.info[key][world, agent]:
-            return text
-    return "running"
+    return next((words for key, words in OUTCOME_WORDS.items() if record.info[key][world, agent]), "running")
 
 
 def draw_trajectories(ax, replay_: Replay, condition: Condition, panel_width_in: float = 6.5) -> None:
@@ -270,6 +261,7 @@ def draw_trajectories(ax, replay_: Replay, condition: Condition, panel_width_in:
         goals = list(layout.goals)
         offsets = np.zeros(paths.shape[1])
     ax.set_aspect("equal")
+    crashes = crashed(record.info)
     for agent in range(paths.shape[2]):
         rgb = tuple(c / 255 for c in colour(agent))
         for episode in range(paths.shape[1]):
@@ -286,7 +278,7 @@ def draw_trajectories(ax, replay_: Replay, condition: Condition, panel_width_in:
                 label=agent_names[agent] if episode == 0 else None,
             )
             ax.plot(*track[0], marker="o", color=rgb, markersize=5)
-            if record.info["collided_agent"][episode, agent] or record.info["collided_wall"][episode, agent]:
+            if crashes[episode, agent]:
                 ax.plot(*track[-1], marker="X", color="k", markersize=8, zorder=4)
         gx, gy = goals[agent]
         ax.plot(gx, gy, marker="*", markersize=14, color=rgb, markeredgecolor="k", linestyle="none", zorder=5)
@@ -297,7 +289,7 @@ def draw_trajectories(ax, replay_: Replay, condition: Condition, panel_width_in:
         for episode in range(episodes):
             text = _outcome(record, episode, agent)
             counts[text] = counts.get(text, 0) + 1
-        # No-break spaces: a wrapped title keeps "3× hit wall" on one line.
+        # No-break spaces: a wrapped title keeps "3× hit a wall" on one line.
         counted = (f"{n}× {text}".replace(" ", "\u00a0") for text, n in counts.items())
         tallies.append(f"{agent_names[agent].split(' (')[0]}: " + ", ".join(counted))
     width = int(panel_width_in * TITLE_CHARS_PER_INCH)

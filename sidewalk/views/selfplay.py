@@ -9,7 +9,7 @@ from tensordict import TensorDictBase
 from torchrl.data import Composite
 
 from sidewalk._torchrl import new_tensordict_unchecked
-from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase
+from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase, crashed
 from sidewalk.symmetry import check_mirror_symmetric, mirror_action, mirror_observation
 from sidewalk.views.base import WORLD, _SidewalkView
 
@@ -141,10 +141,10 @@ class SelfPlayView(_SidewalkView):
         agents = core_out.get(AGENT_GROUP)
         reward = self._world_reward(agents, reset)
         info = agents.get("info")
-        crashed = info.get("collided_agent") | info.get("collided_wall")
+        crash = crashed(info)
         flags = {key: core_out.get(key) for key in ("done", "terminated", "truncated")}
-        terminated = crashed | flags["terminated"].unsqueeze(1).expand(*self._agents_shape, 1)
-        truncated = flags["truncated"].unsqueeze(1) & ~crashed
+        terminated = crash | flags["terminated"].unsqueeze(1).expand(*self._agents_shape, 1)
+        truncated = flags["truncated"].unsqueeze(1) & ~crash
         done = terminated | truncated
         cost, mask = agents.get("cost"), ~done
         group = {
