@@ -27,13 +27,14 @@ import os
 import re
 import warnings
 from collections.abc import Iterator, Mapping
-from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import gymnasium
 import numpy as np
 
+from sidewalk._minari import jax_free_collector_class
+from sidewalk.envs import INFO_KEYS
 from sidewalk.interop.gymnasium import CENTRALIZED, DOMAINS, ENV_IDS, SidewalkGymEnv
 from sidewalk.version import __version__
 
@@ -105,75 +106,6 @@ def check_dataset(dataset_id: Any, data_path: str | os.PathLike | None = None) -
     )
 
 
-def _tree_map(fn: Any, tree: Any, other: Any) -> Any:
-    """``fn`` over the leaves of ``tree`` (dicts, tuples and lists are nodes; None stays None), with the matching
-    part of ``other``: the little of ``jax.tree_util.tree_map`` that Minari's episode buffers use."""
-    if tree is None:
-        return None
-    if isinstance(tree, dict):
-        return {key: _tree_map(fn, value, other[key]) for key, value in tree.items()}
-    if isinstance(tree, (tuple, list)):
-        return type(tree)(_tree_map(fn, value, part) for value, part in zip(tree, other, strict=True))
-    return fn(tree, other)
-
-
-@cache
-def _collector_class() -> type:
-    """``minari.DataCollector`` whose episode buffers append without jax.
-
-    Minari 0.5's ``EpisodeBuffer.add_step_data`` imports jax (``minari[create]``, hundreds of MB) only for a tree
-    map over dicts of arrays; this subclass re-types the buffer that ``reset`` and ``step`` leave in
-    ``_buffer`` (a private attribute of Minari 0.5; tests/test_datasets.py fails loudly should it change)."""
-    import dataclasses as dc
-
-    import minari
-    from minari.data_collector.episode_buffer import EpisodeBuffer
-
-    def append(data: Any, buffer: Any) -> list:
-        if isinstance(buffer, list):
-            buffer.append(data)
-            return buffer
-        return [buffer, data]
-
-    @dc.dataclass(frozen=True)
-    class NumpyEpisodeBuffer(EpisodeBuffer):
-        def add_step_data(self, step_data: Any) -> NumpyEpisodeBuffer:
-            def first(data: Any) -> Any:
-                return _tree_map(lambda leaf, _: [leaf], data, data)
-
-            observations = step_data["observation"]
-            if self.observations is not None:
-                observations = _tree_map(append, step_data["observation"], self.observations)
-            actions = first(step_data["action"]) if self.actions is None else _tree_map(
-                append, step_data["action"], self.actions)
-            infos = first(step_data["info"]) if self.infos is None else _tree_map(append, step_data["info"], self.infos)
-            self.rewards.append(step_data["reward"])
-            self.terminations.append(step_data["terminated"])
-            self.truncations.append(step_data["truncated"])
-            fields = {f.name: getattr(self, f.name) for f in dc.fields(self)}
-            return NumpyEpisodeBuffer(**{**fields, "observations": observations, "actions": actions, "infos": infos})
-
-    class SidewalkDataCollector(minari.DataCollector):
-        """A ``minari.DataCollector`` that records without jax (``sidewalk.datasets.record`` builds it)."""
-
-        def _retype(self) -> None:
-            buffer = self._buffer
-            if buffer is not None and not isinstance(buffer, NumpyEpisodeBuffer):
-                self._buffer = NumpyEpisodeBuffer(**{f.name: getattr(buffer, f.name) for f in dc.fields(buffer)})
-
-        def reset(self, *args: Any, **kwargs: Any):
-            out = super().reset(*args, **kwargs)
-            self._retype()
-            return out
-
-        def step(self, action: Any):
-            out = super().step(action)
-            self._retype()  # an episode's end opened a new buffer
-            return out
-
-    return SidewalkDataCollector
-
-
 def _face(env: gymnasium.Env) -> SidewalkGymEnv:
     face = env.unwrapped
     if not isinstance(face, SidewalkGymEnv):
@@ -190,7 +122,7 @@ def record(env: gymnasium.Env, *, data_path: str | os.PathLike | None = None) ->
     keeps the episodes in a temporary folder under the datasets root (``data_path``, else Minari's) until ``save``."""
     _face(env)
     with datasets_root(data_path):
-        return _collector_class()(env, record_infos=True, jpeg_encoding=False)
+        return jax_free_collector_class()(env, record_infos=True, jpeg_encoding=False)
 
 
 def _jsonable(value: Any) -> Any:
@@ -490,8 +422,7 @@ class ScriptedDriver:
     def __call__(self, info: Mapping[str, Any]) -> Any:
         torch, device = self._torch, self._core.device
         flags = info["agents"]
-        done = np.logical_or.reduce([flags[key] for key in ("reached_goal", "collided_agent", "collided_wall",
-                                                           "timed_out")])
+        done = np.logical_or.reduce([flags[key] for key in INFO_KEYS])
         state = torch.as_tensor(np.asarray(info["state"]), device=device).unsqueeze(0)
         goal = torch.as_tensor(np.asarray(info["goal"]), device=device).unsqueeze(0)
         done = torch.as_tensor(done, device=device).view(1, -1, 1)
