@@ -96,7 +96,7 @@ def write_compressed_metrics(metrics: Any, folder: Path) -> None:
 
 
 class RunFolderError(RuntimeError):
-    """A run folder that cannot be started or continued as asked (the message says why and what to do)."""
+    """A run folder that cannot be read, started or continued as asked (the message says why and what to do)."""
 
 
 class UnreadableFile(RunFolderError, ValueError):

@@ -23,6 +23,7 @@ from sidewalk.run_folder import (
     METRICS_COMPRESSED,
     POLICY,
     SUMMARY,
+    RunFolderError,
     is_group_folder,
     seed_folders,
 )
@@ -31,13 +32,7 @@ ERROR = "error.txt"
 # A folder holding any of these is a run folder, complete or not (".hydra" alone: a job killed while starting).
 RUN_MARKERS = (CONFIG, METRICS, METRICS_COMPRESSED, SUMMARY, CHECKPOINT, POLICY, ERROR, ".hydra")
 POLICY_FILES = f"{POLICY} or {CHECKPOINT}"
-
-
 SWEEP_MARKER = "multirun.yaml"
-
-
-class RunFolderError(Exception):
-    """A run folder that cannot be used; the message says why."""
 
 
 @dataclass
