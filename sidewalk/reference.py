@@ -277,7 +277,7 @@ def _has_runs(runs: Path, job: str, overrides: Sequence[str]) -> bool:
 
     from sidewalk.compose import compose
     from sidewalk.report.conditions import condition_config
-    from sidewalk.report.runs import CONFIG, flatten
+    from sidewalk.run_folder import CONFIG, flatten
 
     def condition(cfg: Any) -> dict[str, Any]:
         return condition_config(flatten(OmegaConf.to_container(cfg, resolve=True)))

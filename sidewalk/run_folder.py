@@ -299,18 +299,22 @@ def git_revision(root: Path | None = None) -> str:
 # ---- config and history ------------------------------------------------------------------------------------------
 
 
-def _flatten(tree: Any, prefix: str = "") -> dict[str, Any]:
-    if isinstance(tree, Mapping):
-        flat: dict[str, Any] = {}
-        for key, value in tree.items():
-            flat.update(_flatten(value, f"{prefix}{key}."))
-        return flat if flat or not prefix else {prefix[:-1]: {}}
-    return {prefix[:-1]: tree}
+def flatten(config: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested mappings to dotted keys (an empty one stays a value); lists become tuples so that values can be
+    compared and hashed."""
+    flat: dict[str, Any] = {}
+    for key, value in config.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping) and value:
+            flat.update(flatten(value, f"{name}."))
+        else:
+            flat[name] = tuple(value) if isinstance(value, list) else value
+    return flat
 
 
 def config_changes(old: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, tuple[Any, Any]]:
     """Every dotted key whose value differs between two resolved configs: ``{key: (old, new)}`` (absent: None)."""
-    flat_old, flat_new = _flatten(old), _flatten(new)
+    flat_old, flat_new = flatten(old), flatten(new)
     missing = object()
     changes = {}
     for key in sorted(set(flat_old) | set(flat_new)):

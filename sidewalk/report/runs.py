@@ -24,6 +24,7 @@ from sidewalk.run_folder import (
     POLICY,
     SUMMARY,
     RunFolderError,
+    flatten,
     is_group_folder,
     seed_folders,
 )
@@ -89,18 +90,6 @@ def family_of(run_dir: Path) -> str:
         if (parent / SWEEP_MARKER).exists():
             return parent.name
     return run_dir.resolve().parent.name
-
-
-def flatten(config: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Nested dicts to dotted keys; lists become tuples so that values can be compared and hashed."""
-    flat: dict[str, Any] = {}
-    for key, value in config.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict) and value:
-            flat.update(flatten(value, f"{name}."))
-        else:
-            flat[name] = tuple(value) if isinstance(value, list) else value
-    return flat
 
 
 def read_metrics(path: Path) -> pd.DataFrame:
