@@ -86,6 +86,16 @@ class ContinuousParams:
             raise TypeError(f"rewards={self.rewards!r} must be a RewardParams or a mapping of its fields")
 
 
+def touches_box(boxes: torch.Tensor, x: torch.Tensor, y: torch.Tensor, distance_m: float) -> torch.Tensor:
+    """Bool, the shape of ``x``: the point (x, y) lies within ``distance_m`` of an interior box (x_min, y_min, x_max,
+    y_max) of ``boxes`` (n, 4), on the points' device."""
+    x_min, y_min, x_max, y_max = boxes.unbind(-1)  # each (n,)
+    x, y = x.unsqueeze(-1), y.unsqueeze(-1)
+    near_x = torch.maximum(torch.minimum(x, x_max), x_min)
+    near_y = torch.maximum(torch.minimum(y, y_max), y_min)
+    return ((x - near_x).square() + (y - near_y).square() < distance_m**2).any(-1)
+
+
 class ContinuousSidewalkEnv(SidewalkEnvBase):
     """The continuous Sidewalk as a batched multi-agent TorchRL env.
 
@@ -278,11 +288,7 @@ class ContinuousSidewalkEnv(SidewalkEnvBase):
 
     def _touches_box(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         """Bool (B, N): the agent's disc overlaps an interior box."""
-        x_min, y_min, x_max, y_max = self._boxes.unbind(-1)  # each (n_boxes,)
-        near_x = torch.maximum(torch.minimum(x.unsqueeze(-1), x_max), x_min)
-        near_y = torch.maximum(torch.minimum(y.unsqueeze(-1), y_max), y_min)
-        gap_sq = (x.unsqueeze(-1) - near_x).square() + (y.unsqueeze(-1) - near_y).square()
-        return (gap_sq < self.params.agent_radius_m**2).any(-1)
+        return touches_box(self._boxes, x, y, self.params.agent_radius_m)
 
     def _state_features(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         p = self.params

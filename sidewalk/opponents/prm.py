@@ -21,6 +21,7 @@ import torch
 
 from sidewalk._checks import check_int, check_range
 from sidewalk.envs.base import SidewalkEnvBase
+from sidewalk.envs.unicycle import touches_box
 from sidewalk.opponents.base import Opponent
 
 NUM_NODES = 150  # sampled nodes, before those outside the roadmap's largest connected piece are dropped
@@ -755,13 +756,13 @@ def _sample_nodes(
     if (span <= 0).any():
         raise ValueError(f"no free space: walls {wall_distance_m} m away leave a span of {span.tolist()} m")
     probe = low + span * torch.rand(4 * n_nodes, 2, generator=generator)
-    free_share = (~_touches_box(boxes, probe[:, 0], probe[:, 1], wall_distance_m)).float().mean()
+    free_share = (~touches_box(boxes, probe[:, 0], probe[:, 1], wall_distance_m)).float().mean()
     spacing = NODE_SPACING_FRACTION * math.sqrt(float(span.prod() * free_share) / n_nodes)
     nodes = torch.empty(n_nodes, 2)
     count = 0
     for _ in range(SAMPLING_ROUNDS):
         candidates = low + span * torch.rand(4 * n_nodes, 2, generator=generator)
-        candidates = candidates[~_touches_box(boxes, candidates[:, 0], candidates[:, 1], wall_distance_m)]
+        candidates = candidates[~touches_box(boxes, candidates[:, 0], candidates[:, 1], wall_distance_m)]
         for point in candidates:
             if count == 0 or torch.cdist(point[None], nodes[:count]).min() >= spacing:
                 nodes[count] = point
@@ -906,19 +907,6 @@ def _box_tensor(boxes: Sequence[Sequence[float]]) -> torch.Tensor:
     return torch.tensor(boxes, dtype=torch.float32).reshape(-1, 4)
 
 
-def _touches_box(boxes: torch.Tensor, x: torch.Tensor, y: torch.Tensor, distance_m: float) -> torch.Tensor:
-    """Bool, the shape of ``x``: the point lies within ``distance_m`` of an interior box (x_min, y_min, x_max,
-    y_max) of ``boxes`` (n, 4)."""
-    boxes = boxes.to(x.device)
-    if not len(boxes):
-        return torch.zeros(x.shape, dtype=torch.bool, device=x.device)
-    x_min, y_min, x_max, y_max = boxes.unbind(-1)
-    x, y = x.unsqueeze(-1), y.unsqueeze(-1)
-    near_x = torch.maximum(torch.minimum(x, x_max), x_min)
-    near_y = torch.maximum(torch.minimum(y, y_max), y_min)
-    return ((x - near_x).square() + (y - near_y).square() < distance_m**2).any(-1)
-
-
 def _segment_clear(
     boxes: torch.Tensor,
     agent_radius_m: float,
@@ -936,5 +924,5 @@ def _segment_clear(
     steps = math.ceil(connection_radius_m / SEGMENT_CHECK_STEP_M) + 1
     fraction = torch.linspace(0.0, 1.0, steps, device=ax.device)
     ax, ay, bx, by = (t.unsqueeze(-1) for t in (ax, ay, bx, by))
-    touches = _touches_box(boxes, ax + (bx - ax) * fraction, ay + (by - ay) * fraction, agent_radius_m)
+    touches = touches_box(boxes.to(ax.device), ax + (bx - ax) * fraction, ay + (by - ay) * fraction, agent_radius_m)
     return ~touches.any(-1)
