@@ -17,16 +17,12 @@ from __future__ import annotations
 import functools
 import importlib
 import json
-import os
 import runpy
 import sys
 import time
 from collections import defaultdict
 from collections.abc import Callable
 from typing import Any
-
-if __name__ == "__main__":  # run by path: this folder's modules (envs.py, views.py, ...) must not shadow others
-    sys.path = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirname(os.path.abspath(__file__))]
 
 # (label, "module:attribute.path"). A target missing in a revision is skipped (and listed in the output).
 PROBES: tuple[tuple[str, str], ...] = (
