@@ -21,8 +21,8 @@ Setups (rows compare ours with SB3's row of the setup named in ``versus``):
   schedule, Polyak rate, buffer, γ) and the same network: ours without the dueling head and without double DQN
   (SB3's DQN has neither); SB3 at SB3_EQUAL, read from our conf at run time.
 - ``dueling``: ours at its defaults (the paper's dueling head, double DQN), against SB3's ``equal`` row.
-- ``tuned``: the best settings found for each (TUNED_OURS, TUNED_SB3; what was tried is said beside them; today
-  they are ``dueling``'s and ``equal``'s, so it is not run by default).
+- ``tuned``: the settings given with ``--ours`` / ``--sb3``; none: ``dueling``'s and ``equal``'s, the best a search
+  found (what was tried is said at SETUPS), so it is not run by default.
 frames/s and ms per gradient step (``--fps-setups``): ours at ``equal`` and ``dueling``, SB3 at ``equal``, timed after
 learning starts, without evaluations. A gradient step's cost is the median over the learner's update calls of a
 call's time over its gradient steps, in wall clock and in CPU time (the notes' ratios: CPU time first, steadier on a
@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import logging
 import math
 import os
 import statistics
@@ -67,11 +68,14 @@ SECONDS = 240.0  # training-time cap of one run
 SEEDS = (0, 1, 2, 3, 4)
 EVAL_EVERY_FRAMES = 10_240  # 20 iterations of our default DQN
 FPS_FRAMES = 25_600  # timed frames after learning starts, for frames/s
-VERBOSE = False  # print every evaluation to stderr (--verbose)
 # Every run: the discrete sidewalk against Dijkstra at noise 0.1, no logger, no checkpoint until the end.
 BASE_OVERRIDES = ("env=discrete", "opponent=dijkstra", "algo=dqn", f"noise={NOISE}", "logger=none", "checkpoint_every=0")
 # SB3's DQN network: no dueling head, no double DQN.
 EQUAL_NETWORK = ("algo.dueling=false", "algo.double_dqn=false")
+# ``tuned``: a search at noise 0 (median over seeds 0-3 of the time to two evaluations in a row >= 0.9; 32, 64 and 128
+# worlds, 128 or 512 frames an iteration, Polyak 0.01/0.05/0.1, ε decay 5k frames, lr 2.5e-4 or 1e-3, l2 loss) found
+# 128 worlds, 4 gradient steps per 512 frames and Polyak 0.05 best for both learners: those are now our DQN defaults,
+# so without --ours / --sb3 ``tuned`` runs ours at its defaults (the ``dueling`` row) and SB3 at ``equal``.
 SETUPS = ("equal", "dueling", "tuned")
 # SB3's DQN arguments, plus n_envs, frames_per_train (train_freq in frames; SB3 counts vector steps) and
 # eps_decay_frames (SB3 states exploration as a fraction of total_timesteps, unknown to a capped run). None: our
@@ -92,13 +96,6 @@ SB3_EQUAL: dict[str, Any] = {
     "frames_per_train": None,
     "gradient_steps": None,
 }
-# The best settings found for each, for the ``tuned`` setup. A search at noise 0 (median over seeds 0-3 of the time to
-# two evaluations in a row >= 0.9; 32, 64 and 128 worlds, 128 or 512 frames an iteration, Polyak 0.01/0.05/0.1,
-# ε decay 5k frames, lr 2.5e-4 or 1e-3, l2 loss) found 128 worlds, 4 gradient steps per 512 frames and Polyak 0.05
-# best for both learners: those are now our DQN defaults, so ``tuned`` runs ours at its defaults (the ``dueling``
-# row) and SB3 at ``equal``; it is not run by default. Pass --ours / --sb3 to try others.
-TUNED_OURS: tuple[str, ...] = ()
-TUNED_SB3: dict[str, Any] = {}
 DEFAULT_SETUPS = ("equal", "dueling")
 FPS_SETUPS = ("equal", "dueling")  # the frames/s and cost-per-gradient-step rows: ours and plain at both, SB3 at equal
 LEARNERS = ("ours", "sb3", "plain")  # plain: our DQN's update in plain PyTorch (a cost per gradient step only)
@@ -107,6 +104,7 @@ COLUMNS = (
     "frames_to_criterion", "met", "seconds_first", "seconds_with_eval", "best_success", "frames_per_s",
     "ms_per_gradient_step", "cpu_ms_per_gradient_step", "load_1min", "note", "settings",
 )
+log = logging.getLogger(__name__)  # --verbose: every evaluation and run, to stderr
 
 
 # ---- our side: the runners/main.py path -------------------------------------------------------------------------
@@ -139,10 +137,8 @@ class _Clock:
         self.eval_s += eval_end - eval_start
         self.best = max(self.best, success)
         self.history.append((frames, train_s, success))
-        if VERBOSE:
-            print(f"  eval {self.evaluations}: {frames} frames, {train_s:.1f} s training "
-                  f"(+{self.eval_s:.1f} s eval), ego success {success:.3f}, load {os.getloadavg()[0]:.1f}",
-                  file=sys.stderr, flush=True)
+        log.info("  eval %d: %d frames, %.1f s training (+%.1f s eval), ego success %.3f, load %.1f",
+                 self.evaluations, frames, train_s, self.eval_s, success, os.getloadavg()[0])
         self.streak = self.streak + 1 if success >= self.target else 0
         if self.streak == 1 and self.first is None:
             self.first = point
@@ -617,9 +613,10 @@ def run(
 
     ``num_envs``: training worlds of both learners for the ``equal``/``dueling`` setups and frames/s (default: the
     config's; the ``tuned`` setups choose their own); ``seconds``: training-time cap of each run;
-    ``ours_overrides`` (Hydra overrides) and ``sb3_overrides`` (SB3_EQUAL keys) replace TUNED_OURS / TUNED_SB3 in
-    the ``tuned`` setup; ``fps_setups``: the setups of the frames/s and cost-per-gradient-step rows (SB3 at
-    ``equal`` only, ``plain`` has no frames/s). ``runners/bench.py`` passes ``num_envs`` and ``threads`` as lists.
+    ``ours_overrides`` (Hydra overrides) and ``sb3_overrides`` (SB3_EQUAL keys): the ``tuned`` setup's settings
+    (none: ours at its defaults, SB3 at ``equal``); ``fps_setups``: the setups of the frames/s and
+    cost-per-gradient-step rows (SB3 at ``equal`` only, ``plain`` has no frames/s). ``runners/bench.py`` passes
+    ``num_envs`` and ``threads`` as lists.
     """
     unknown = sorted(set(setups) - set(SETUPS)) + sorted(set(fps_setups) - set(FPS_SETUPS))
     if unknown:
@@ -631,9 +628,8 @@ def run(
         missing_sb3 = True
     else:
         missing_sb3 = False
-    tuned_ours = TUNED_OURS if ours_overrides is None else tuple(ours_overrides)
-    tuned_sb3 = TUNED_SB3 if sb3_overrides is None else dict(sb3_overrides)
-    ours_extra = {"equal": EQUAL_NETWORK, "dueling": (), "tuned": tuned_ours}
+    tuned_sb3 = dict(sb3_overrides or {})
+    ours_extra = {"equal": EQUAL_NETWORK, "dueling": (), "tuned": tuple(ours_overrides or ())}
     rows: list[dict] = []
     for n_threads in _as_list(threads):
         for n in _as_list(num_envs):
@@ -665,11 +661,9 @@ def run(
                             row = _loaded(sb3_time_to_target, worlds, n_threads, seed, seconds, eval_every_frames,
                                           tuned_sb3 if setup == "tuned" else {})
                         per_seed.append({**base, "measure": "time_to_criterion", "setup": setup, "seed": seed, **row})
-                        if VERBOSE:
-                            done = per_seed[-1]
-                            print(f"{setup} {learner} seed {seed}: criterion {done.get('seconds_to_criterion')} s, "
-                                  f"first {done.get('seconds_first')} s, {done.get('note') or ''}",
-                                  file=sys.stderr, flush=True)
+                        done = per_seed[-1]
+                        log.info("%s %s seed %s: criterion %s s, first %s s, %s", setup, learner, seed,
+                                 done.get("seconds_to_criterion"), done.get("seconds_first"), done.get("note") or "")
                     rows += per_seed
                     if len(per_seed) > 1:
                         rows.append(_median(per_seed))
@@ -747,12 +741,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--fps-setups", nargs="*", default=list(FPS_SETUPS), choices=list(FPS_SETUPS),
                         help="setups of the frames/s and cost-per-gradient-step rows")
     parser.add_argument("--eval-every-frames", type=int, default=EVAL_EVERY_FRAMES)
-    parser.add_argument("--ours", nargs="*", help="Hydra overrides of our tuned run (replace TUNED_OURS)")
-    parser.add_argument("--sb3", nargs="*", help="SB3 settings key=value of the tuned run (replace TUNED_SB3)")
+    parser.add_argument("--ours", nargs="*", help="Hydra overrides of our tuned run (default: our defaults)")
+    parser.add_argument("--sb3", nargs="*", help="SB3 settings key=value of the tuned run (default: equal's)")
     parser.add_argument("--verbose", action="store_true", help="print every evaluation and run to stderr")
     args = parser.parse_args(argv)
-    global VERBOSE
-    VERBOSE = args.verbose
+    if args.verbose:
+        log.addHandler(logging.StreamHandler(sys.stderr))
+        log.setLevel(logging.INFO)
     sb3 = None
     if args.sb3 is not None:
         sb3 = {}
