@@ -23,19 +23,18 @@ from typing import Any, ClassVar
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule, TensorDictModuleBase
+from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn
 from torchrl.data import Bounded, Categorical, Composite
 from torchrl.envs import EnvBase
-from torchrl.envs.utils import ExplorationType
 from torchrl.modules import MultiAgentConvNet, MultiAgentMLP, ProbabilisticActor, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from sidewalk._torchrl import multi_agent_mlp_last_layer
-from sidewalk.algos.base import FixedExplorationPolicy, MultiAgentAlgorithm, MultiAgentConfig
+from sidewalk.algos.base import MultiAgentAlgorithm, MultiAgentConfig
 from sidewalk.algos.networks import PAPER_CONV, RunningNorm, VectorEncoder, is_image_spec, tanh_normal
-from sidewalk.algos.ppo import LOSS_LOGS, PPOConfig, clipped_ppo_update
+from sidewalk.algos.ppo import LOSS_LOGS, ClippedPPOMixin, PPOConfig, clipped_ppo_update
 from sidewalk.envs.base import AGENT_GROUP
 
 LOG_PROB_KEY = (AGENT_GROUP, "action_log_prob")
@@ -140,7 +139,7 @@ def multi_agent_networks(
     return actor, value, norm
 
 
-class IPPO(MultiAgentAlgorithm):
+class IPPO(ClippedPPOMixin, MultiAgentAlgorithm):
     """Clipped PPO for every agent at once, each on its own reward; advantages by GAE over each collected
     (worlds, time) batch. ``centralised_critic``: the value networks see every agent's observation (MAPPO)."""
 
@@ -168,32 +167,10 @@ class IPPO(MultiAgentAlgorithm):
         )
         self.loss.set_keys(action=self.ACTION_KEY, sample_log_prob=LOG_PROB_KEY, **value_keys)
         self.loss.loss_mask_key = self.MASK_KEY  # an agent's steps after its own end carry no learning signal
-        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr, foreach=True)
-        self._generator = torch.Generator().manual_seed(0)
-        self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
-        self._evaluation = FixedExplorationPolicy(self.actor, ExplorationType.DETERMINISTIC)
-
-    def collection_policy(self) -> TensorDictModuleBase:
-        return self._collection
-
-    def evaluation_policy(self) -> TensorDictModuleBase:
-        return self._evaluation
+        self._build_update()
 
     def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
         return clipped_ppo_update(
             self, batch, self.OBSERVATION_KEY, self.ACTION_KEY, LOG_PROB_KEY, (*LOSS_LOGS, "kl_approx", "clip_fraction"),
             mask_key=self.MASK_KEY,
         )
-
-    def modules(self) -> dict[str, torch.nn.Module]:
-        return {"loss": self.loss}
-
-    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
-        return {"adam": self.optimizer}
-
-    def state_dict(self) -> dict[str, Any]:
-        return {**super().state_dict(), "minibatch_rng": self._generator.get_state()}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        super().load_state_dict(state)
-        self._generator.set_state(state["minibatch_rng"])

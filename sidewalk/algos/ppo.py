@@ -129,7 +129,39 @@ def clipped_ppo_update(
     return {key: logged(torch.stack(values).mean(0), lead) for key, values in logs.items() if values}
 
 
-class PPO(Algorithm):
+class ClippedPPOMixin:
+    """What the learners that ``clipped_ppo_update`` updates (PPO, IPPO and theirs) hold alike around their own
+    networks and ``loss``: one Adam, the minibatch generator the checkpoint keeps, a sampling and a deterministic
+    policy. Mixed in before ``Algorithm`` (or ``MultiAgentAlgorithm``); ``_build`` ends with ``_build_update``."""
+
+    def _build_update(self) -> None:
+        # foreach: see TRPO's value optimizer
+        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=self.config.lr, foreach=True)
+        self._generator = torch.Generator().manual_seed(0)
+        self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
+        self._evaluation = FixedExplorationPolicy(self.actor, ExplorationType.DETERMINISTIC)
+
+    def collection_policy(self) -> TensorDictModuleBase:
+        return self._collection
+
+    def evaluation_policy(self) -> TensorDictModuleBase:
+        return self._evaluation
+
+    def modules(self) -> dict[str, torch.nn.Module]:
+        return {"loss": self.loss}
+
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        return {"adam": self.optimizer}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {**super().state_dict(), "minibatch_rng": self._generator.get_state()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        super().load_state_dict(state)
+        self._generator.set_state(state["minibatch_rng"])
+
+
+class PPO(ClippedPPOMixin, Algorithm):
     """Clipped PPO with a separate critic; advantages by GAE over each collected (worlds, time) batch."""
 
     name = "ppo"
@@ -150,29 +182,7 @@ class PPO(Algorithm):
             self.actor, self.critic, clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coef,
             critic_coeff=cfg.critic_coef, normalize_advantage=False, reduction="none" if self.replicas else "mean",
         )
-        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr, foreach=True)  # see TRPO's value optimizer
-        self._generator = torch.Generator().manual_seed(0)
-        self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
-        self._evaluation = FixedExplorationPolicy(self.actor, ExplorationType.DETERMINISTIC)
-
-    def collection_policy(self) -> TensorDictModuleBase:
-        return self._collection
-
-    def evaluation_policy(self) -> TensorDictModuleBase:
-        return self._evaluation
+        self._build_update()
 
     def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
         return clipped_ppo_update(self, batch, "observation", "action", self.loss.tensor_keys.sample_log_prob, LOSS_LOGS)
-
-    def modules(self) -> dict[str, torch.nn.Module]:
-        return {"loss": self.loss}
-
-    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
-        return {"adam": self.optimizer}
-
-    def state_dict(self) -> dict[str, Any]:
-        return {**super().state_dict(), "minibatch_rng": self._generator.get_state()}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        super().load_state_dict(state)
-        self._generator.set_state(state["minibatch_rng"])
