@@ -55,13 +55,11 @@ def scenario_overrides(scenario: str, domain: str) -> list[str]:
 def evaluate_team(scenario: str, domain: str, team: str, noise: float, seed: int, episodes: int) -> dict:
     """The metrics of one team of scripted agents in ``episodes`` worlds of one scenario, seeded with ``seed``."""
     from sidewalk.compose import compose_experiment
-    from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
     from sidewalk.evaluate import evaluate
-    from sidewalk.opponents.team import ScriptedTeam
+    from sidewalk.partners.team import ScriptedTeam
 
     experiment = compose_experiment([*scenario_overrides(scenario, domain), f"noise={noise}", f"seed={seed}"])
-    core_cls = DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
-    core = core_cls(episodes, seed=seed, params=experiment.env_params)
+    core = experiment.world.core(episodes, seed=seed)
     name = "random" if team == "random" else PLANNER[domain]
     players = ScriptedTeam(core, name)
     metrics = evaluate(players.view, players, seed=seed, deterministic=False)

@@ -19,7 +19,6 @@ writing its checkpoint (a second Ctrl-C stops at once, from the last checkpoint 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import os
 import signal
 import sys
@@ -30,13 +29,13 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import HydraException
 from hydra.types import RunMode
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 
 from sidewalk import hydra_callbacks, run_folder
 from sidewalk.compose import one_line
 from sidewalk.continue_command import continue_command
-from sidewalk.hydra_callbacks import ERROR_FILE, checked
+from sidewalk.hydra_callbacks import ERROR_FILE, planned
 from sidewalk.paths import CONFIG_DIR
 from sidewalk.schema import register_schemas
 
@@ -54,16 +53,11 @@ def main(cfg: DictConfig) -> float | None:
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
     in_sweep = hydra_cfg.mode == RunMode.MULTIRUN
-    config = OmegaConf.to_container(cfg, resolve=True)
     refused_file = run_dir.with_name(f"{run_dir.name}.{ERROR_FILE}")  # a refused job's error: not in its folder
     with contextlib.ExitStack() as held:
         try:
-            experiment = checked(cfg)  # every check before any compute (a single run's passed them in CheckFirst)
-            # One writer per folder, taken before the folder is read: a second process is refused here.
-            held.enter_context(run_folder.writer_lock(run_dir))
-            from sidewalk.trial_state import check_folders, read_summaries, state_dir
-
-            plan = check_folders(run_dir, experiment, config, in_sweep)
+            # Every check before any compute (a single run's passed them in CheckFirst), then the folder's plan.
+            experiment, config, plan = planned(cfg, run_dir, held, in_sweep)
         except run_folder.FolderInUse as error:
             refuse(error, in_sweep, refused_file)
             return None
@@ -73,13 +67,15 @@ def main(cfg: DictConfig) -> float | None:
         for stale in (run_dir / ERROR_FILE, refused_file):  # an earlier attempt's failure, which this one retries
             stale.unlink(missing_ok=True)
         if plan == "finished":
+            from sidewalk.trial_state import read_summaries
+
             print(f"resume=true: {run_dir} finished at this budget already; nothing to do", file=sys.stderr)
             return report(read_summaries(run_dir, experiment), run_dir, plots=False)
-        if plan == "start" and experiment.resume:  # a sweep's job that the interrupted sweep never reached
-            experiment, config = dataclasses.replace(experiment, resume=False), {**config, "resume": False}
         try:
             return train(experiment, run_dir, config, in_sweep, cfg.plots, continue_command(hydra_cfg))
         except KeyboardInterrupt:  # Ctrl-C before the training loop took over SIGINT (start-up, the final report)
+            from sidewalk.trial_state import state_dir
+
             holds_run = (state_dir(run_dir, experiment) / run_folder.CONFIG).exists()  # else: start it, no resume
             print(f"\ninterrupted; {run_dir} keeps what it had written; continue with:\n  "
                   f"{continue_command(hydra_cfg, resume=holds_run)}", file=sys.stderr)
@@ -120,8 +116,7 @@ def train(experiment, run_dir: Path, config: dict, in_sweep: bool, plots: bool, 
         # A failing job keeps its error in its own folder and lets the other jobs run; SweepStatus exits 1 at the end.
         (run_dir / ERROR_FILE).write_text(traceback.format_exc())
         return None
-    return report(summaries if isinstance(summaries, list) else [summaries], run_dir,
-                  plots=plots and not in_sweep)  # a sweep's runs are reported together: runners/report.py <sweep folder>
+    return report(summaries, run_dir, plots=plots and not in_sweep)  # a sweep's runs are reported together: runners/report.py <sweep folder>
 
 
 def report(summaries: list[dict], run_dir: Path, plots: bool) -> float | None:

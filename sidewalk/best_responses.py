@@ -1,6 +1,6 @@
 """Best responses to the held-out partners: the denominators of BR-Prox (ZSC-Eval's normalised ad-hoc score).
 
-For each held-out member of a domain (``sidewalk.opponents.population``) our learner that the domain's reference
+For each held-out member of a domain (``sidewalk.partners.population``) our learner that the domain's reference
 trains against a scripted partner (``RECIPES``: PPO in the continuous world, DQN in the grid) is trained against that
 member alone, then evaluated with it under the cross-play protocol (``sidewalk.crossplay.evaluate_cell``: greedy, one
 episode in each of ``episodes`` worlds seeded ``seed + EVAL_SEED_OFFSET``, the matrix's own worlds). Its team success
@@ -24,7 +24,7 @@ import pandas as pd
 
 from sidewalk._checks import check_choice, check_int
 from sidewalk.crossplay import evaluate_cell, evaluation_world, heldout_column, load_player
-from sidewalk.opponents.population import Member, population
+from sidewalk.partners.population import Member, population
 from sidewalk.report.crossplay import BEST_RESPONSES_CSV, best_response_warning
 from sidewalk.stats import interval_estimate
 
@@ -127,26 +127,19 @@ def train_one(
 ) -> tuple[list[Path], str]:
     """Train the best response to ``name`` in ``runs_dir/<domain>/<name>``, continuing a run stopped there and
     skipping one that finished; return its seeds' run folders and the command that trains it."""
-    import dataclasses
-
-    from omegaconf import OmegaConf
+    import contextlib
 
     from sidewalk.compose import compose
-    from sidewalk.config import validate
     from sidewalk.experiment import Trial
-    from sidewalk.opponents.policy import check_partner_of
-    from sidewalk.run_folder import CONFIG
-    from sidewalk.trial_state import check_folders, seed_dirs, state_dir
+    from sidewalk.hydra_callbacks import planned
+    from sidewalk.trial_state import seed_dirs
 
     run_dir = Path(runs_dir) / domain / name
     overrides = best_response_overrides(domain, name, seeds, iterations, extra)
-    cfg = compose(overrides)
-    experiment, config = validate(cfg), OmegaConf.to_container(cfg, resolve=True)
-    check_partner_of(experiment)
-    if (state_dir(run_dir, experiment) / CONFIG).exists():  # an earlier job started it: continue, as resume=true does
-        experiment, config = dataclasses.replace(experiment, resume=True), {**config, "resume": True}
-    if check_folders(run_dir, experiment, config) != "finished":
-        Trial(experiment, run_dir, config).run(progress=False)
+    with contextlib.ExitStack() as held:  # the start sequence of runners/main.py, continuing what an earlier job began
+        experiment, config, plan = planned(compose(overrides), run_dir, held, continue_started=True)
+        if plan != "finished":
+            Trial(experiment, run_dir, config).run(progress=False)
     folders = seed_dirs(run_dir, experiment)
     command = shlex.join(["python", "runners/main.py", *overrides, f"hydra.run.dir={run_dir}"])
     return folders, command
@@ -228,7 +221,7 @@ def best_responses_from_runs(
 def heldout_member(flat: dict[str, Any], members: dict[str, Member]) -> str | None:
     """The held-out member whose opponent and settings (its defaults but where it says otherwise) a run's flat
     ``opponent.*`` config holds; None when none does."""
-    from sidewalk.datasets import opponent_config
+    from sidewalk.opponents.base import opponent_config
 
     for name, member in members.items():
         if flat.get("opponent.name") != member.opponent:

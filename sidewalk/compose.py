@@ -49,9 +49,3 @@ def one_line(error: BaseException) -> str:
     if isinstance(cause, OmegaConfBaseException):
         text += f": {str(cause).strip().splitlines()[0]}"
     return text
-
-
-def fitting_algo(domain: str) -> str:
-    """A learner that fits ``domain``, for configs of scripted play: validation checks the learner against the
-    domain even where none learns."""
-    return "dqn" if domain == "discrete" else "trpo"

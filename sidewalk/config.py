@@ -3,7 +3,7 @@
 The config groups' schemas live in ``sidewalk.schema``. ``validate`` raises on the first bad value or combination
 with a message that names it and the valid choices, which it reads from what the opponents and learners declare
 (``sidewalk.registry``). It opens no file: a learned partner's run folder is checked by ``check_partner``
-(``sidewalk.opponents.policy``), which the runner calls beside it, still before any compute.
+(``sidewalk.partners.policy``), which the runner calls beside it, still before any compute.
 """
 
 from __future__ import annotations
@@ -19,9 +19,8 @@ from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBase
 
 from sidewalk._checks import check_choice, check_int, check_keys, check_range
 from sidewalk.algos.base import AlgoConfig
-from sidewalk.envs.grid import DiscreteSidewalkEnv
-from sidewalk.envs.unicycle import ContinuousSidewalkEnv
-from sidewalk.later_keys import NOMINAL_EVAL
+from sidewalk.envs import CORE_ENVS, core_class
+from sidewalk.opponents.base import OPPONENT_PLACES
 from sidewalk.registry import LAYOUTS, LEARNERS, OPPONENTS
 from sidewalk.schema import (
     PROTOCOL_ENV_FIELDS,
@@ -36,11 +35,9 @@ from sidewalk.schema import (
     env_params_of,
 )
 from sidewalk.views import MAX_JOINT_ACTIONS
+from sidewalk.world import LEARNER_PLAYS_ALL, World
 
-DOMAINS = ("discrete", "continuous")
-# Choices of `opponent` that are views, not opponents: the learner plays every agent.
-LEARNER_PLAYS_ALL = {"centralized": "the learner plays every agent through one joint action",
-                     "self": "every agent is the learner (the multi-agent learners)"}
+DOMAINS = tuple(CORE_ENVS)
 LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
 KEEP_CHECKPOINT = ("final", "all")
 
@@ -52,14 +49,11 @@ def opponent_domains() -> dict[str, tuple[str, ...]]:
 
 @dataclass(frozen=True)
 class Experiment:
-    """A validated experiment: the objects to build, every value checked."""
+    """A validated experiment, every value checked: the ``world`` it trains in (``eval_world``: the worlds its
+    protocol evaluates on), the learner, the budget and the seeds."""
 
-    domain: str
-    env_params: Any  # DiscreteParams | ContinuousParams
-    opponent: str
-    opponent_params: dict
-    ego: int
-    end_on_ego_done: bool
+    world: World
+    evaluation: EvalSchema  # the evaluation protocol (conf/eval): how evaluation worlds differ from the training's
     algo: AlgoConfig
     logger: LoggerSchema
     seed: int
@@ -72,27 +66,26 @@ class Experiment:
     resume: bool
     keep_checkpoint: str
     torch_threads: int
-    evaluation: EvalSchema = dataclasses.field(default_factory=lambda: EvalSchema(**NOMINAL_EVAL))
-    shield: bool = False  # the safety shield guards the learner's actions (training and evaluation)
-    other_play: bool = False  # self-play partners act through a random mirror of the game (sidewalk.symmetry)
     replicas: int = 1  # seeds seed .. seed+replicas-1 trained together in this process (sidewalk.experiment.Trial)
 
     def describe(self) -> str:
         """What this experiment trains, as the overrides that choose it: the world, the learner, the opponent, the
         noise, the seeds and the budget."""
         seeds = f"seeds={self.seed}..{self.seed + self.replicas - 1}" if self.replicas > 1 else f"seed={self.seed}"
-        return (f"env={self.domain} env.layout={self.env_params.layout} algo={self.algo.name} "
-                f"opponent={self.opponent} noise={self.env_params.noise:g} {seeds} iterations={self.iterations}")
+        world = self.world
+        return (f"env={world.domain} env.layout={world.env_params.layout} algo={self.algo.name} "
+                f"opponent={world.opponent} noise={world.env_params.noise:g} {seeds} iterations={self.iterations}")
 
     @property
-    def eval_env_params(self) -> Any:
-        """The env parameters of the evaluation worlds: the training env's, with the protocol's jitter bounds."""
-        return protocol_env_params(self.evaluation, self.domain, self.env_params)
+    def eval_world(self) -> World:
+        """The worlds an evaluation plays: the training world with the protocol's jitter bounds."""
+        return dataclasses.replace(
+            self.world, env_params=protocol_env_params(self.evaluation, self.world.domain, self.world.env_params))
 
     def protocol_summary(self) -> dict[str, Any]:
         """The evaluation protocol as ``summary.json`` records it: its name, the bounds of this domain, and whether
         training drew its worlds alike."""
-        bounds = {name: getattr(self.evaluation, name) for name in PROTOCOL_ENV_FIELDS[self.domain]}
+        bounds = {name: getattr(self.evaluation, name) for name in PROTOCOL_ENV_FIELDS[self.world.domain]}
         return {"name": self.evaluation.name, **bounds, "train_alike": self.evaluation.train_alike}
 
 
@@ -108,8 +101,9 @@ def _field_names(schema: type) -> list[str]:
     return [f.name for f in dataclasses.fields(schema)]
 
 
-def check_known_keys(cfg: DictConfig, algo_cls: type) -> None:
-    """Raise naming any key no schema has (``+nosie=0.5``, ``+env.widht_m=2``), with the closest valid one.
+def check_known_keys(cfg: DictConfig, algo_cls: type | None) -> None:
+    """Raise naming any key no schema has (``+nosie=0.5``, ``+env.widht_m=2``), with the closest valid one; the
+    learner's keys against ``algo_cls`` (None: not checked, where nothing learns).
 
     Hydra's ``+`` adds a key whatever the schema says, and an unread key would let a typo train on the default.
     """
@@ -121,6 +115,8 @@ def check_known_keys(cfg: DictConfig, algo_cls: type) -> None:
         "algo": algo_cls, "eval": EvalSchema,
     }
     for group, schema in groups.items():
+        if schema is None:
+            continue
         check_keys(f"{group}.* ({group}={cfg[group].get('name', cfg[group].get('domain'))})", list(cfg[group].keys()),
                    _field_names(schema))
 
@@ -151,24 +147,13 @@ def validate(cfg: DictConfig) -> Experiment:
     domain, opponent, algo_name = _check_pairing(cfg)
     check_choice("logger", cfg.logger.name, LOGGERS)
     check_known_keys(cfg, LEARNERS[algo_name].Config)
-    check_choice("env.layout", cfg.env.layout, LAYOUTS.names())
-    # The noise means a random-action probability in the grid and a ±ε uniform noise in the continuous world.
-    check_range("noise", cfg.noise, 0.0, 1.0 if domain == "discrete" else 10.0)
-    env_params = env_params_of(cfg)
-    evaluation = _check_protocol(cfg, domain, env_params)
-    n_agents = _check_world(cfg, domain, opponent, env_params)
-    ego = cfg.opponent.ego
-    check_int("opponent.ego", ego, 0, n_agents - 1)
+    world, evaluation = _checked_world(cfg, domain, opponent)
     algo_cls = LEARNERS[algo_name].Config
     algo = OmegaConf.to_object(cfg.algo) if OmegaConf.get_type(cfg.algo) is algo_cls else algo_cls(**cfg.algo)
     logger = OmegaConf.to_object(cfg.logger) if OmegaConf.get_type(cfg.logger) is LoggerSchema else LoggerSchema(**cfg.logger)
     return Experiment(
-        domain=domain,
-        env_params=env_params,
-        opponent=opponent,
-        opponent_params=_opponent_params(cfg, opponent),
-        ego=ego,
-        end_on_ego_done=bool(cfg.opponent.end_on_ego_done),
+        world=world,
+        evaluation=evaluation,
         algo=algo,
         logger=logger,
         seed=cfg.seed,
@@ -181,11 +166,32 @@ def validate(cfg: DictConfig) -> Experiment:
         resume=bool(cfg.resume),
         keep_checkpoint=str(cfg.keep_checkpoint),
         torch_threads=cfg.torch_threads,
-        evaluation=evaluation,
-        shield=bool(cfg.shield),
-        other_play=bool(cfg.other_play),
         replicas=cfg.replicas,
     )
+
+
+def validate_world(cfg: DictConfig) -> World:
+    """The World of a composed config (its env, partner, shield, other-play), checked as ``validate`` checks it, with
+    no learner or run: for scripted play (the play page, renders), where nothing learns."""
+    domain, opponent = _check_partner_pairing(cfg)
+    check_known_keys(cfg, algo_cls=None)
+    return _checked_world(cfg, domain, opponent)[0]
+
+
+def _checked_world(cfg: DictConfig, domain: str, opponent: str) -> tuple[World, EvalSchema]:
+    """The training world of ``cfg`` and its evaluation protocol, every value checked."""
+    check_choice("env.layout", cfg.env.layout, LAYOUTS.names())
+    # The noise means a random-action probability in the grid and a ±ε uniform noise in the continuous world.
+    check_range("noise", cfg.noise, 0.0, 1.0 if domain == "discrete" else 10.0)
+    env_params = env_params_of(cfg)
+    evaluation = _check_protocol(cfg, domain, env_params)
+    n_agents = _check_world(cfg, domain, opponent, env_params)
+    ego = cfg.opponent.ego
+    check_int("opponent.ego", ego, 0, n_agents - 1)
+    world = World(domain, env_params, opponent, _opponent_params(cfg, opponent), ego,
+                  end_on_ego_done=bool(cfg.opponent.end_on_ego_done), shield=bool(cfg.shield),
+                  other_play=bool(cfg.other_play))
+    return world, evaluation
 
 
 def _check_run_settings(cfg: DictConfig) -> None:
@@ -216,8 +222,8 @@ def available_devices() -> list[str]:
     return devices
 
 
-def _check_pairing(cfg: DictConfig) -> tuple[str, str, str]:
-    """The domain, the opponent and the learner, checked to fit one another (as each declares what it plays)."""
+def _check_partner_pairing(cfg: DictConfig) -> tuple[str, str]:
+    """The domain and the opponent, checked to fit each other (as the opponent declares the domains it plays)."""
     domain = cfg.env.domain
     check_choice("env.domain", domain, DOMAINS)
     opponents = opponent_domains()
@@ -226,6 +232,12 @@ def _check_pairing(cfg: DictConfig) -> tuple[str, str, str]:
     if domain not in opponents[opponent]:
         valid = [name for name, domains in opponents.items() if domain in domains]
         raise ValueError(f"opponent={opponent} does not play env={domain}; valid opponents there: {', '.join(valid)}")
+    return domain, opponent
+
+
+def _check_pairing(cfg: DictConfig) -> tuple[str, str, str]:
+    """The domain, the opponent and the learner, checked to fit one another (as each declares what it plays)."""
+    domain, opponent = _check_partner_pairing(cfg)
     algo_name = cfg.algo.name
     check_choice("algo", algo_name, LEARNERS)
     learners = {name: LEARNERS[name] for name in LEARNERS}
@@ -255,9 +267,8 @@ def _check_protocol(cfg: DictConfig, domain: str, env_params: Any) -> EvalSchema
     bound that keeps every agent off them), before the training world's check: with ``eval.train_alike`` training
     takes the same bounds, and the user gave them as ``eval.*``."""
     protocol = OmegaConf.to_object(cfg.eval) if OmegaConf.get_type(cfg.eval) is EvalSchema else EvalSchema(**cfg.eval)
-    env_cls = DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
     try:
-        env_cls.layout_for(protocol_env_params(protocol, domain, env_params))
+        core_class(domain).layout_for(protocol_env_params(protocol, domain, env_params))
     except ValueError as error:
         if not str(error).startswith(PROTOCOL_ENV_FIELDS[domain]):
             raise  # the scenario itself cannot be built: the message names what is wrong with it
@@ -279,8 +290,7 @@ def _check_world(cfg: DictConfig, domain: str, opponent: str, env_params: Any) -
                 f"the paper's conv stack needs at least {side} px per side: raise env.pixels_per_cell or use "
                 "env.observation=vector"
             )
-    env_cls = DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
-    layout = env_cls.layout_for(env_params)  # raises on a scenario that cannot hold its agents
+    layout = core_class(domain).layout_for(env_params)  # raises on a scenario that cannot hold its agents
     n_agents = layout.n_agents
     env_params.rewards.shaping_mask(n_agents, device="cpu")  # raises on agents the layout does not have
     if opponent == "centralized" and domain == "discrete" and 4**n_agents > MAX_JOINT_ACTIONS:
@@ -308,10 +318,6 @@ def _opponent_params(cfg: DictConfig, opponent: str) -> dict[str, Any]:
     if settings is not None:
         check_keys(f"opponent.params (opponent={opponent})", params, settings, kind="parameter")
     return params
-
-
-# What every opponent's constructor takes before its own settings (sidewalk.opponents.base.Opponent).
-OPPONENT_PLACES = ("self", "env", "controlled", "ego")
 
 
 def opponent_settings(opponent: str) -> list[str] | None:

@@ -9,10 +9,10 @@ The pairing:
 - a row is a run folder (its ``policy.pt``, or the ``checkpoint.pt`` of a run from before ``policy.pt``); it plays the agent it trained as: its ego for a single-agent
   learner, agent 0 for a centralized or self-play learner (both were trained as every agent);
 - a column is a scripted opponent of the domain (``random``, ``dijkstra``/``prm``) or a learned partner (a run
-  folder, ``sidewalk.opponents.policy.PolicyOpponent``); it plays every other agent. By default the columns are
+  folder, ``sidewalk.partners.policy.PolicyOpponent``); it plays every other agent. By default the columns are
   the domain's scripted opponents and every row, so the matrix holds each run with itself (self-pairs), with the
   other seeds of its condition (cross-seed pairs) and with the other conditions. ``heldout`` adds the domain's
-  held-out partner population (``sidewalk.opponents.population``), whose team success per condition is the ad-hoc
+  held-out partner population (``sidewalk.partners.population``), whose team success per condition is the ad-hoc
   score (``sidewalk.report.crossplay.adhoc_table``): partners no learner met in training;
 - both sides act greedily (the evaluation policy: greedy Q, the distribution's mode), as in the runs' own
   evaluations;
@@ -48,10 +48,11 @@ from tensordict.nn import TensorDictModuleBase
 
 from sidewalk._checks import check_keys
 from sidewalk.config import protocol_env_params
+from sidewalk.envs import core_class
 from sidewalk.evaluate import distinct_rows, evaluate, run_episodes
 from sidewalk.experiment import EVAL_SEED_OFFSET
 from sidewalk.opponents.base import ACTION_KEY, Opponent
-from sidewalk.opponents.policy import (
+from sidewalk.partners.policy import (
     OBSERVATION_KEY,
     Partner,
     PartnerMismatch,
@@ -60,6 +61,7 @@ from sidewalk.opponents.policy import (
     read_partner,
 )
 from sidewalk.schema import NOMINAL_PROTOCOL
+from sidewalk.world import World
 
 SCRIPTED = "scripted"  # --partners shorthand: the domain's scripted opponents
 ROWS = "rows"  # --partners shorthand: every row's run folder
@@ -89,6 +91,7 @@ COLUMNS = (
     "distinct_episodes",
     "skipped",
     "heldout",
+    "met_in_training",
 )
 METRICS = {  # CSV column -> key of sidewalk.evaluate's metrics in the row's ego view
     "success": "ego/success_rate",
@@ -113,9 +116,9 @@ class Player:
     """A learned policy of the matrix: a row, a partner, or both."""
 
     path: Path  # the run folder, as given
-    partner: Partner  # what its policy.pt says (sidewalk.opponents.policy.read_partner)
+    partner: Partner  # what its policy.pt says (sidewalk.partners.policy.read_partner)
     seed: int | None  # the run's seed (config.yaml), None when the folder does not say
-    condition: str  # its config without the seed and bookkeeping keys, as JSON: seeds of one condition share it
+    condition: str  # its config without the seed and bookkeeping keys, and its folder, as JSON: seeds share it
     label: str = ""  # the condition's label: "dqn vs dijkstra", plus what sets it apart from same-named ones
 
     @property
@@ -184,8 +187,7 @@ def load_player(path: str | Path) -> Player:
     from omegaconf import OmegaConf
 
     from sidewalk.report.conditions import condition_config
-    from sidewalk.report.runs import flatten
-    from sidewalk.run_folder import CONFIG
+    from sidewalk.run_folder import CONFIG, flatten
 
     path = Path(path)
     try:
@@ -198,8 +200,11 @@ def load_player(path: str | Path) -> Player:
         seed = int(config["seed"]) if "seed" in config else None
         flat = condition_config(flatten(config))
     if flat is None:  # policy.pt alone: its own description of the learner and its world
-        flat = {"algo": dataclasses.asdict(partner.algo_config), "env": dataclasses.asdict(partner.env_params),
-                "opponent": partner.opponent, "ego": partner.ego}
+        flat = {"algo": dataclasses.asdict(partner.algo_config), "env": dataclasses.asdict(partner.world.env_params),
+                "opponent": partner.world.opponent, "ego": partner.ego}
+    # Runs of one config from different folders are different conditions (two sweeps, two machines): the folder
+    # that holds a run is part of its condition, so their rows stay apart and their labels name the folders.
+    flat = {**flat, "folder": str(path.parent)}
     return Player(path, partner, seed, json.dumps(sorted(flat.items()), default=str))
 
 
@@ -234,9 +239,9 @@ def label_players(players: Sequence[Player]) -> None:
 
 
 def heldout_columns(domain: str, known: dict[Path, Player]) -> list[Column]:
-    """The held-out partner population of ``domain`` (``sidewalk.opponents.population``) as columns named
+    """The held-out partner population of ``domain`` (``sidewalk.partners.population``) as columns named
     ``heldout:<member>``; a shipped learned member already in ``known`` shares its ``Player``."""
-    from sidewalk.opponents.population import population
+    from sidewalk.partners.population import population
 
     return [heldout_column(domain, name, member, known) for name, member in population(domain, "heldout").items()]
 
@@ -335,12 +340,10 @@ def _scripted_with_settings(item: str) -> Column:
 def check_scripted_settings(columns: Sequence[Column], domain: str, world: Any) -> None:
     """Every scripted partner given settings is built once on a one-world core of ``world``, so that a bad value
     stops the matrix with ``CrossplayError`` naming it before any cell is played."""
-    from sidewalk.views import view_for_opponent
-
     for column in columns:
         if column.player is None and column.params and not column.heldout:
             try:
-                view_for_opponent(_core_class(domain)(1, params=world), column.opponent, 0, opponent_kwargs=column.params)
+                World(domain, world, column.opponent, column.params).make(1)
             except (ValueError, TypeError) as error:
                 raise CrossplayError(f"partner {column.name!r}: {error}") from error
 
@@ -352,26 +355,26 @@ def evaluation_world(rows: Sequence[Player], noise: float | None, nominal: bool 
     if not rows:
         raise CrossplayError("give at least one run folder (a row)")
     if noise is None:
-        noises = sorted({float(player.partner.env_params.noise) for player in rows})
+        noises = sorted({float(player.partner.world.env_params.noise) for player in rows})
         if len(noises) > 1:
             raise CrossplayError(
                 f"the rows were trained at different noise levels ({', '.join(f'{n:g}' for n in noises)}): "
                 "give --noise to evaluate every cell at one"
             )
         noise = noises[0]
-    world = dataclasses.replace(rows[0].partner.env_params, noise=float(noise))
+    world = dataclasses.replace(rows[0].partner.world.env_params, noise=float(noise))
     if nominal:
-        world = protocol_env_params(NOMINAL_PROTOCOL, rows[0].partner.domain, world)
+        world = protocol_env_params(NOMINAL_PROTOCOL, rows[0].partner.world.domain, world)
     return world
 
 
 def check_players(players: Sequence[Player], world: Any, reference: Player) -> None:
     """Every learned policy plays in ``world`` (the first row's domain, scenario and observation), else
     ``CrossplayError`` naming the run, before anything is evaluated."""
-    domain = reference.partner.domain
+    domain = reference.partner.world.domain
     for player in players:
         try:
-            check_partner(player.path, domain, world, ego=None, controlled=[])
+            check_partner(player.path, World(domain, world), controlled=[])
         except PartnerMismatch as error:
             raise CrossplayError(
                 f"{player.path} cannot be paired with {reference.path} (the first row, whose world every cell is "
@@ -379,26 +382,45 @@ def check_players(players: Sequence[Player], world: Any, reference: Player) -> N
             ) from error
 
 
+def met_in_training(row: Player, column: Column) -> bool:
+    """Whether ``row`` trained beside ``column``'s partner, as its training World says: the same scripted opponent
+    with the same settings (its defaults but where either says otherwise, ``opponent_config``; a version of an
+    opponent, such as the Dijkstra agent's tie-break, is a setting), the same learned policy (``opponent=policy``),
+    or a member of the training population it drew from (``opponent=population``). Such a partner is not new to
+    the row: the ad-hoc score leaves its cells out."""
+    from sidewalk.opponents.base import opponent_config
+
+    trained = row.partner.world
+    if column.player is not None:
+        path = trained.opponent_params.get("path") if trained.opponent == "policy" else None
+        return path is not None and Path(path).resolve() == column.player.path.resolve()
+    if trained.opponent == "population":
+        from sidewalk.partners.population import population
+
+        table = population(trained.domain, "training")
+        met = [table[name] for name in trained.opponent_params.get("members") or table]
+        partners = [(member.opponent, member.params) for member in met]
+    else:
+        partners = [(trained.opponent, trained.opponent_params)]
+    name = column.opponent or column.name
+    return any(opponent == name and opponent_config(opponent, params) == opponent_config(name, column.params)
+               for opponent, params in partners)
+
+
 def cell_problem(row: Player, column: Column, world: Any) -> str:
     """Why ``column`` cannot play every agent but ``row``'s in ``world`` ("" when it can)."""
     if column.player is None:
         return ""
-    others = [agent for agent in range(_n_agents(row.partner.domain, world)) if agent != row.agent]
+    others = [agent for agent in range(_n_agents(row.partner.world.domain, world)) if agent != row.agent]
     try:
-        check_partner(column.player.path, row.partner.domain, world, ego=row.agent, controlled=others)
+        check_partner(column.player.path, World(row.partner.world.domain, world, ego=row.agent), controlled=others)
     except PartnerMismatch as error:
         return str(error)
     return ""
 
 
-def _core_class(domain: str):
-    from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
-
-    return DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
-
-
 def _n_agents(domain: str, world: Any) -> int:
-    return _core_class(domain).layout_for(world).n_agents
+    return core_class(domain).layout_for(world).n_agents
 
 
 class DistinctPlayer(Opponent):
@@ -507,7 +529,7 @@ class Arena:
 
     def core(self, ego: int):
         if ego not in self._cores:
-            self._cores[ego] = _core_class(self.domain)(
+            self._cores[ego] = core_class(self.domain)(
                 self.episodes, device=self.device, seed=self.world_seed, params=self.world
             )
         return self._cores[ego]
@@ -555,7 +577,7 @@ def evaluate_cell(
 ) -> dict[str, float]:
     """One cell alone (``Arena.evaluate``): ``row`` with ``column`` playing every other agent, one episode in each
     of ``episodes`` worlds seeded ``seed + EVAL_SEED_OFFSET``."""
-    return Arena(row.partner.domain, world, episodes, seed, device).evaluate(row, column)
+    return Arena(row.partner.world.domain, world, episodes, seed, device).evaluate(row, column)
 
 
 def crossplay(
@@ -580,7 +602,7 @@ def crossplay(
     Call ``check_players`` first (``run_crossplay`` does).
     """
     records = []
-    arena = Arena(rows[0].partner.domain, world, episodes, seed, device) if rows else None
+    arena = Arena(rows[0].partner.world.domain, world, episodes, seed, device) if rows else None
     for row in rows:
         for column in columns:
             partner = column.player
@@ -597,6 +619,7 @@ def crossplay(
                 "same_condition": partner is not None and partner.condition == row.condition,
                 "skipped": cell_problem(row, column, world),
                 "heldout": column.heldout,
+                "met_in_training": met_in_training(row, column),
             }
             if not record["skipped"]:
                 metrics = arena.evaluate(row, column)
@@ -641,7 +664,7 @@ def run_crossplay(
     rows = [load_player(path) for path in find_runs(run_paths)]
     if not rows:
         raise CrossplayError("give at least one run folder (a row)")
-    domain = rows[0].partner.domain
+    domain = rows[0].partner.world.domain
     columns = resolve_partners(partners, rows, domain)
     world = evaluation_world(rows, noise, nominal)
     if any(column.heldout for column in columns) and (world.layout != "sidewalk" or _n_agents(domain, world) != 2):

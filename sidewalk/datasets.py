@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import inspect
 import json
 import os
 import re
@@ -34,8 +33,9 @@ import gymnasium
 import numpy as np
 
 from sidewalk._minari import jax_free_collector_class
-from sidewalk.envs import INFO_KEYS
-from sidewalk.interop.gymnasium import CENTRALIZED, DOMAINS, ENV_IDS, SidewalkGymEnv
+from sidewalk.envs import CORE_ENVS, INFO_KEYS
+from sidewalk.interop.gymnasium import CENTRALIZED, ENV_IDS, SidewalkGymEnv
+from sidewalk.opponents.base import opponent_config
 from sidewalk.version import __version__
 
 if TYPE_CHECKING:
@@ -47,7 +47,6 @@ CARD_NAME = "DATACARD.md"
 DATASET_ID_RE = re.compile(r"^(?P<namespace>[\w-][\w/-]*[\w-])/(?P<name>[\w-]+?)-v(?P<version>\d+)$")
 # What the face's SidewalkGymEnv takes besides the core env's own keywords (its Params fields).
 VIEW_KEYWORDS = ("opponent", "ego", "end_on_ego_done", "opponent_kwargs", "shield")
-OPPONENT_PLACES = ("self", "env", "controlled", "ego")
 
 
 class DatasetEnvMismatchWarning(UserWarning):
@@ -142,21 +141,8 @@ def _jsonable(value: Any) -> Any:
     return repr(value)
 
 
-def opponent_config(name: str, given: Mapping[str, Any]) -> dict[str, Any]:
-    """The opponent ``name``'s settings as it plays with ``given``: its constructor's defaults overridden by
-    ``given`` (every setting named, so that a changed default shows)."""
-    from sidewalk.registry import OPPONENTS
-
-    if name == CENTRALIZED or name not in OPPONENTS:
-        return dict(given)
-    parameters = inspect.signature(OPPONENTS[name].__init__).parameters.values()
-    defaults = {p.name: p.default for p in parameters
-                if p.name not in OPPONENT_PLACES and p.default is not inspect.Parameter.empty}
-    return {**defaults, **given}
-
-
 def _domain(face: SidewalkGymEnv) -> str:
-    return next(domain for domain, cls in DOMAINS.items() if type(face.view.core) is cls)
+    return next(domain for domain, cls in CORE_ENVS.items() if type(face.view.core) is cls)
 
 
 def pinned_config(env: gymnasium.Env, env_config: Mapping[str, Any]) -> dict[str, Any]:

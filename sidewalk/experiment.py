@@ -42,10 +42,8 @@ from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 from tqdm import tqdm
 
 from sidewalk.config import Experiment
-from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate, train_metrics
 from sidewalk.loggers import make_logger
-from sidewalk.opponents.policy import policy_description
 from sidewalk.progress import Progress
 from sidewalk.registry import LEARNERS
 from sidewalk.replica_learners import ReplicaSet
@@ -58,6 +56,7 @@ from sidewalk.run_folder import (
     git_revision,
     has_checkpoint,
     package_versions,
+    policy_description,
     save_policy,
     strict_json,
     writer_lock,
@@ -76,7 +75,6 @@ from sidewalk.trial_state import (
     show_progress,
     state_dir,
 )
-from sidewalk.views import view_for_opponent
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds draw from a stream of their own, the same at every evaluation
 # The absolute metric (Colas et al. 2018, marl-eval): the best evaluation's policy played on ten times the episodes,
@@ -85,26 +83,12 @@ ABSOLUTE_EPISODES = 10
 ABSOLUTE_SEED_OFFSET = 2_000_003
 
 
-def experiment_env(experiment: Experiment, num_envs: int, seed: int, env_params: Any = None) -> EnvBase:
-    """The env a learner trains or is evaluated on: the core env of ``num_envs`` worlds (``env_params``, by default
-    the training worlds') seen through the experiment's view (``sidewalk.views.view_for_opponent``: ego against a
-    scripted opponent or a learned partner, centralized, or self-play)."""
-    core_cls = DiscreteSidewalkEnv if experiment.domain == "discrete" else ContinuousSidewalkEnv
-    params = experiment.env_params if env_params is None else env_params
-    core = core_cls(num_envs, device=experiment.device, seed=seed, params=params)
-    return view_for_opponent(
-        core, experiment.opponent, experiment.ego, shield=experiment.shield,
-        end_on_ego_done=experiment.end_on_ego_done, opponent_kwargs=experiment.opponent_params,
-        other_play=experiment.other_play,
-    )
-
-
 def make_eval_view(experiment: Experiment, seed: int | None = None, worlds: int | None = None) -> EnvBase:
     """The env an evaluation plays: ``eval_episodes`` (or ``worlds``) worlds drawn as its protocol says
-    (``Experiment.eval_env_params``), seeded from the evaluation's own stream (``seed``: the experiment's)."""
+    (``Experiment.eval_world.env_params``), seeded from the evaluation's own stream (``seed``: the experiment's)."""
     seed = experiment.seed if seed is None else seed
     worlds = experiment.eval_episodes if worlds is None else worlds
-    return experiment_env(experiment, worlds, seed + EVAL_SEED_OFFSET, env_params=experiment.eval_env_params)
+    return experiment.eval_world.make(worlds, seed + EVAL_SEED_OFFSET, experiment.device)
 
 
 def collector_frames_per_batch(experiment: Experiment) -> int:
@@ -140,9 +124,9 @@ class Trial:
         progress: bool = True,
         on_evaluation: Callable[[dict[str, float], float, float], bool] | None = None,
         absolute_metric: bool = True,
-    ) -> dict[str, Any]:
-        """Train, evaluate and write the run folders, holding their writer locks; return the summary (a list of
-        them, one per seed, with several seeds).
+    ) -> list[dict[str, Any]]:
+        """Train, evaluate and write the run folders, holding their writer locks; return their summaries, one per
+        seed (one seed alone: a list of one).
 
         ``on_evaluation(metrics, started, ended)`` is called after each periodic evaluation with its metrics and
         its ``time.perf_counter()`` bounds; returning True ends training there (the run folder is completed as
@@ -171,7 +155,7 @@ class Trial:
                 bar.close()
                 signals.finishing = True
                 summaries = self._finish(parts, revision, absolute_metric, progress)
-            return summaries[0] if len(summaries) == 1 else summaries
+            return summaries
 
     def _folders(self) -> list[Path]:
         return list(dict.fromkeys([self.state_dir, *self.seed_dirs]))  # one seed: its folder holds the state too
@@ -184,7 +168,7 @@ class Trial:
     def _build(self) -> Parts:
         """env → view → learner → collector → replay buffer → logger."""
         exp, count = self.experiment, len(self.seeds)
-        train_env = TransformedEnv(experiment_env(exp, count * exp.num_envs, self.seeds if count > 1 else exp.seed),
+        train_env = TransformedEnv(exp.world.make(count * exp.num_envs, self.seeds if count > 1 else exp.seed, exp.device),
                                    RewardSum())
         runs = []  # evaluation envs before the learner, as a lone run has always drawn them
         for seed, run_dir in zip(self.seeds, self.seed_dirs):
@@ -388,12 +372,13 @@ class Trial:
         learner = parts.learners.learner(replica)
         learner.load_policy_state_dict(best.policy)
         seed = exp.seed + ABSOLUTE_SEED_OFFSET
-        env = experiment_env(exp, ABSOLUTE_EPISODES * exp.eval_episodes, seed, env_params=exp.eval_env_params)
+        env = exp.eval_world.make(ABSOLUTE_EPISODES * exp.eval_episodes, seed, exp.device)
         metrics = evaluate(env, learner.evaluation_policy(), seed=seed,
-                           one_world=lambda: experiment_env(exp, 1, seed, env_params=exp.eval_env_params))
+                           one_world=lambda: exp.eval_world.make(1, seed, exp.device))
         return {"iteration": best.iteration, "frames": best.iteration * parts.frames_per_batch, **metrics}
 
     def _policy_state(self, parts: Parts, replica: int) -> dict[str, Any]:
         """``policy.pt``: the networks and the description of the world they learned in, all a partner needs."""
-        description = policy_description(parts.runs[replica].experiment)
+        experiment = parts.runs[replica].experiment
+        description = policy_description(experiment.algo, experiment.world)
         return {**parts.learners.policy_state(replica), "description": description}

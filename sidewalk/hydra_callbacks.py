@@ -3,6 +3,7 @@ a folder or starts a job; a sweep whose jobs failed ends with a non-zero exit st
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import sys
 from pathlib import Path
@@ -14,7 +15,7 @@ from omegaconf import DictConfig
 from sidewalk._hydra import BASIC_SWEEPER, basic_sweeper_points
 from sidewalk.config import Experiment, validate
 from sidewalk.loggers import check_logger
-from sidewalk.opponents.policy import check_partner_of
+from sidewalk.partners.policy import check_partner_of
 from sidewalk.run_folder import RunFolderError
 
 ERROR_FILE = "error.txt"
@@ -27,14 +28,39 @@ def checked(cfg: DictConfig) -> Experiment:
     """The validated experiment of ``cfg``, its logger's package, its learned partner's folder and one world of it
     built as training builds it: every check before compute, so a bad partner setting (``tie_break=rnd``), a missing
     dataset or an uninstalled logger is refused with the config's errors, before Hydra makes a folder."""
-    from sidewalk.experiment import experiment_env
-
     experiment = validate(cfg)
     check_logger(experiment.logger.name)
     check_partner_of(experiment)
-    if experiment.opponent != "policy":  # a learned partner's folder is checked above; rebuilding it costs a learner
-        experiment_env(experiment, 1, experiment.seed)  # the partner's constructor checks its settings in its world
+    # The partner's constructor checks its settings in its world; a learned partner's folder is checked above
+    # (rebuilding it costs a learner).
+    if experiment.world.opponent != "policy":
+        experiment.world.make(1, experiment.seed, experiment.device)
     return experiment
+
+
+def planned(cfg: DictConfig, run_dir: Path, held: contextlib.ExitStack, in_sweep: bool = False,
+            continue_started: bool = False) -> tuple[Experiment, dict[str, Any], str]:
+    """The one start sequence of a trial, up to its first compute: the checked experiment of ``cfg`` (``checked``),
+    the run folder's writer lock (held in ``held``, taken after the checks so a refused config makes no folder), and
+    the plan for ``run_dir`` (``trial_state.check_folders``: ``"start"``, ``"resume"`` or ``"finished"``), with the
+    experiment and its resolved config as the plan runs them. ``continue_started``: a run this config started there
+    is continued, as ``resume=true`` would (the best responses' cache). Raises one of ``REFUSED`` or ``FolderInUse``
+    before any compute. ``runners/main.py`` and ``sidewalk.best_responses`` start their trials through it."""
+    import dataclasses
+
+    from omegaconf import OmegaConf
+
+    from sidewalk.run_folder import CONFIG, writer_lock
+    from sidewalk.trial_state import check_folders, state_dir
+
+    experiment, config = checked(cfg), OmegaConf.to_container(cfg, resolve=True)
+    held.enter_context(writer_lock(run_dir))  # one writer per folder, taken before the folder is read
+    if continue_started and (state_dir(run_dir, experiment) / CONFIG).exists():
+        experiment, config = dataclasses.replace(experiment, resume=True), {**config, "resume": True}
+    plan = check_folders(run_dir, experiment, config, in_sweep)
+    if plan == "start" and experiment.resume:  # a sweep's job that the interrupted sweep never reached
+        experiment, config = dataclasses.replace(experiment, resume=False), {**config, "resume": False}
+    return experiment, config, plan
 
 
 def refuse(message: Any) -> NoReturn:

@@ -30,12 +30,12 @@ class UnknownName(KeyError, ValueError):
 
 
 class Registry(Mapping[str, Any]):
-    """Name → plug-in of one ``kind``, filled by the built-in modules of ``package`` and the entry points of
+    """Name → plug-in of one ``kind``, filled by the built-in modules of ``packages`` and the entry points of
     ``group``, both read on first use. A name asked for but missing raises ``UnknownName`` naming the valid ones."""
 
-    def __init__(self, kind: str, package: str, group: str) -> None:
+    def __init__(self, kind: str, packages: tuple[str, ...], group: str) -> None:
         self.kind = kind
-        self.package = package
+        self.packages = packages
         self.group = group
         self._entries: dict[str, Any] = {}
         self._broken: dict[str, str] = {}  # plug-ins whose entry point failed to load, with the error
@@ -57,9 +57,10 @@ class Registry(Mapping[str, Any]):
             return
         self._loading = True
         try:
-            package = importlib.import_module(self.package)
-            for module in pkgutil.iter_modules(package.__path__):
-                importlib.import_module(f"{self.package}.{module.name}")
+            for name in self.packages:
+                package = importlib.import_module(name)
+                for module in pkgutil.iter_modules(package.__path__):
+                    importlib.import_module(f"{name}.{module.name}")
             for point in importlib.metadata.entry_points(group=self.group):
                 self._load_entry_point(point)
             self._loaded = True
@@ -104,6 +105,8 @@ def _qualname(entry: Any) -> str:
     return f"{getattr(entry, '__module__', '?')}.{getattr(entry, '__qualname__', repr(entry))}"
 
 
-OPPONENTS = Registry("opponent", "sidewalk.opponents", "sidewalk.opponents")
-LAYOUTS = Registry("layout", "sidewalk.envs.layouts", "sidewalk.layouts")
-LEARNERS = Registry("algo", "sidewalk.algos", "sidewalk.learners")
+# Scripted opponents live below the views, the partners made of a saved run or a dataset above the learners: one name
+# space of choices for ``opponent=``.
+OPPONENTS = Registry("opponent", ("sidewalk.opponents", "sidewalk.partners"), "sidewalk.opponents")
+LAYOUTS = Registry("layout", ("sidewalk.envs.layouts",), "sidewalk.layouts")
+LEARNERS = Registry("algo", ("sidewalk.algos",), "sidewalk.learners")

@@ -35,9 +35,12 @@ import subprocess
 import sys
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from omegaconf import OmegaConf
+
+if TYPE_CHECKING:
+    from sidewalk.world import World
 
 CONFIG = "config.yaml"
 HISTORY = "history.jsonl"
@@ -512,3 +515,34 @@ def drop_training_state(run_dir: Path) -> None:
     """Remove both checkpoint generations (after ``policy.pt`` and ``summary.json`` are written)."""
     for name in (CHECKPOINT, PREVIOUS_CHECKPOINT):
         (run_dir / name).unlink(missing_ok=True)
+
+
+def policy_description(algo: Any, world: World) -> dict[str, Any]:
+    """The part of ``policy.pt`` that says what its networks are: the learner, its settings, and the World they
+    learned in (plain data, read back by ``saved_world``), all a replay or a learned partner needs."""
+    import dataclasses
+
+    return {"algo_name": algo.name, "algo": dataclasses.asdict(algo), "world": world.to_dict()}
+
+
+def saved_world(description: Mapping[str, Any] | None, run_dir: str | Path) -> tuple[str, dict[str, Any], World]:
+    """The learner's name and settings and the World of a ``policy.pt`` ``description``. Older files are read too:
+    one that named its world's domain, env parameters, opponent and ego (before the World), and one written before
+    ``policy.pt`` described anything (None: the run folder's ``config.yaml`` says)."""
+    import dataclasses
+
+    from sidewalk.schema import env_params_of
+    from sidewalk.world import World, env_params_from_dict
+
+    if description is None:
+        cfg = read_saved_config(run_dir)
+        description = {"algo_name": cfg.algo.name, "algo": dataclasses.asdict(OmegaConf.to_object(cfg.algo)),
+                       "domain": cfg.env.domain, "env_params": dataclasses.asdict(env_params_of(cfg)),
+                       "opponent": cfg.opponent.name, "ego": cfg.opponent.ego}
+    if "world" in description:
+        world = World.from_dict(description["world"])
+    else:
+        domain = description["domain"]
+        world = World(domain, env_params_from_dict(domain, description["env_params"]), description["opponent"],
+                      ego=int(description["ego"] or 0))
+    return description["algo_name"], dict(description["algo"]), world

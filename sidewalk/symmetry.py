@@ -1,5 +1,5 @@
 """The sidewalk's symmetries on observations and actions of both domains: the half turn that maps one agent's role
-onto the other's (learned partners playing another role, ``sidewalk.opponents.policy``) and the mirror across the
+onto the other's (learned partners playing another role, ``sidewalk.partners.policy``) and the mirror across the
 centre line (Other-Play, Hu et al. 2020).
 
 The mirror maps the grid's row r to rows-1-r (UP and DOWN swap) and the plane's y to width-y (heading θ to -θ, the

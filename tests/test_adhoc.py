@@ -13,7 +13,7 @@ import scipy.stats
 import torch
 
 from sidewalk.crossplay import CrossplayError, run_crossplay
-from sidewalk.opponents.population import PARTNERS_DIR, population
+from sidewalk.partners.population import PARTNERS_DIR, population
 from sidewalk.report.crossplay import ADHOC_CSV, adhoc_table
 
 ROOT = Path(__file__).resolve().parents[1]

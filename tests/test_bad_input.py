@@ -415,7 +415,7 @@ def test_a_hydra_config_that_gives_no_room_gets_one_that_holds_its_agents(overri
     register_schemas()
     with initialize_config_dir(version_base="1.3", config_dir=str(Path(__file__).resolve().parents[1] / "conf")):
         cfg = compose("config", overrides=overrides)
-    params = validate(cfg).env_params
+    params = validate(cfg).world.env_params
     assert {side: getattr(params, side) for side in room} == room
     saved = OmegaConf.to_container(cfg, resolve=True)["env"]  # what config.yaml records: numbers
     assert {side: saved[side] for side in room} == room

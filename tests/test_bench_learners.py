@@ -81,16 +81,15 @@ def test_sb3_policy_acts_in_physical_units():
     from stable_baselines3.common.vec_env import VecNormalize
 
     from sidewalk.bench.common import sb3_vec_env
-    from sidewalk.experiment import experiment_env
 
     experiment = _experiment("ppo")
     envs = sb3_vec_env(learners.ENV_ID, 4, 0, **learners._face_kwargs(experiment))
     assert (envs.action_space.low == -1).all() and (envs.action_space.high == 1).all()
     model = PPO("MlpPolicy", VecNormalize(envs, norm_reward=False), n_steps=8, batch_size=32, seed=0, device="cpu")
-    view = experiment_env(experiment, 4, 0)
+    view = experiment.world.make(4, 0, experiment.device)
     td = view.reset()
     action = learners.sb3_deterministic_policy(model, view)(td)["action"]
-    high = torch.tensor([experiment.env_params.max_accel_mps2, experiment.env_params.max_turn_rad])
+    high = torch.tensor([experiment.world.env_params.max_accel_mps2, experiment.world.env_params.max_turn_rad])
     raw, _ = model.predict(model.get_vec_normalize_env().normalize_obs(td["observation"].numpy()), deterministic=True)
     torch.testing.assert_close(action, torch.as_tensor(raw) * high)  # symmetric bounds: physical = raw × high
     assert action.shape == view.full_action_spec["action"].shape

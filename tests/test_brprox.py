@@ -17,7 +17,7 @@ from sidewalk.best_responses import (
 from sidewalk.compose import compose
 from sidewalk.config import validate
 from sidewalk.experiment import Trial
-from sidewalk.opponents.population import population
+from sidewalk.partners.population import population
 from sidewalk.report.crossplay import (
     BEST_RESPONSES_CSV,
     adhoc_table,

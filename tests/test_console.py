@@ -45,7 +45,7 @@ def run_tiny(tmp_path, capsys, interrupt_at: str) -> tuple[dict, str]:
     if interrupt_at == "absolute":
         absolute = trial._absolute
         trial._absolute = lambda *args: (ctrl_c(), absolute(*args))[1]
-    summary = trial.run(progress=True, on_evaluation=(lambda *args: bool(ctrl_c()))
+    (summary,) = trial.run(progress=True, on_evaluation=(lambda *args: bool(ctrl_c()))
                         if interrupt_at == "last_evaluation" else None)
     return summary, capsys.readouterr().err
 

@@ -136,12 +136,12 @@ def test_nominal_plays_a_perturbed_run_on_the_worlds_of_eval_nominal(runs, tmp_p
     nominal_run = load_player(train(tmp_path / "nominal", *RUNS["dqn_dijkstra_s1"], *SMALL_GRID, "eval=nominal"))
     perturbed = evaluation_world([load_player(row)], None)
     assert perturbed.start_jitter_rows > 0 and perturbed.goal_jitter_rows > 0
-    assert evaluation_world([load_player(row)], None, nominal=True) == nominal_run.partner.env_params
+    assert evaluation_world([load_player(row)], None, nominal=True) == nominal_run.partner.world.env_params
 
     matrix = run_crossplay([row], "dijkstra", episodes=EPISODES, seed=1, nominal=True, show_progress=False)
     assert set(matrix.meta["jitter"].values()) == {0}
     seed = 1 + EVAL_SEED_OFFSET
-    view = EgoView(DiscreteSidewalkEnv(EPISODES, seed=seed, params=nominal_run.partner.env_params), "dijkstra", ego=0)
+    view = EgoView(DiscreteSidewalkEnv(EPISODES, seed=seed, params=nominal_run.partner.world.env_params), "dijkstra", ego=0)
     metrics = evaluate(view, load_policy(row, load_experiment(row), view), seed=seed)
     cell = matrix.frame.iloc[0]
     assert (cell["success"], cell["team_success"]) == (metrics["ego/success_rate"], metrics["team/success_rate"])
@@ -310,3 +310,54 @@ def test_convention_reads_the_passing_side_and_the_yielder_in_both_domains():
     # two episodes, one each way: the majority is the first in order of a tie, at half the share
     both = np.concatenate([continuous, _walk(1.1, 1.5, length=3.0)[..., ::-1]], axis=1)
     assert convention(both, "continuous", plane)["passing_fraction"] == 0.5
+
+
+def test_a_held_out_partner_a_row_trained_with_is_flagged_from_its_training_world(runs):
+    """A row trained against the held-out Dijkstra agent (the same settings: version 1's tie-break) met it; one
+    trained against today's default Dijkstra (random tie-breaks), a self-play row, and a population row did not."""
+    import dataclasses
+
+    from sidewalk.crossplay import heldout_column, met_in_training
+    from sidewalk.partners.population import population
+
+    members = population("discrete", "heldout")
+    dijkstra, keep_left = (heldout_column("discrete", name, members[name]) for name in ("dijkstra", "keep_left"))
+    today, selfplay = load_player(runs["dqn_dijkstra_s0"]), load_player(runs["iql_self_s0"])
+
+    def trained_against(opponent: str, **params) -> object:
+        world = today.partner.world.replace(opponent=opponent, opponent_params=params)
+        return dataclasses.replace(today, partner=dataclasses.replace(today.partner, world=world))
+
+    version_1 = trained_against("dijkstra", **{**today.partner.world.opponent_params, "tie_break": "progress"})
+    assert met_in_training(version_1, dijkstra) and not met_in_training(version_1, keep_left)
+    assert not met_in_training(today, dijkstra) and not met_in_training(selfplay, dijkstra)
+    assert not met_in_training(trained_against("population"), dijkstra)  # its Dijkstra member plays nearer
+    assert met_in_training(trained_against("convention", style="keep_left"), keep_left)
+
+
+def test_the_ad_hoc_score_leaves_out_partners_a_row_met_and_says_which(tmp_path):
+    from sidewalk.report.crossplay import _adhoc_lines, adhoc_table, best_response_table
+
+    cells = [{"row_run": f"{label}/{seed}", "row_label": label, "partner": f"heldout:{partner}",
+              "partner_label": partner, "partner_kind": "scripted", "self_pair": False, "skipped": "",
+              "heldout": True, "team_success": 1.0, "met_in_training": label == "dqn vs dijkstra" and partner == "dijkstra"}
+             for label in ("dqn vs dijkstra", "iql self-play") for seed in (0, 1) for partner in ("dijkstra", "keep_left")]
+    frame = pd.DataFrame(cells).reindex(columns=list(COLUMNS))
+    table = adhoc_table(frame).set_index("condition")
+    assert (table.loc["dqn vs dijkstra", "partners"], table.loc["iql self-play", "partners"]) == (1, 2)
+    responses = best_response_table(tmp_path)  # none
+    text = " ".join(_adhoc_lines(frame, "###", None, responses))
+    assert "left out where a row trained with one (`dijkstra` by dqn vs dijkstra: 2 of 8 cells)" in text
+    unmet = frame.assign(met_in_training=False)
+    assert "none of which any learner met" in " ".join(_adhoc_lines(unmet, "###", None, responses))
+
+
+def test_runs_of_one_config_from_two_folders_stay_two_conditions(runs, tmp_path):
+    """Two copies of one run in different folders are not seeds of one condition: their labels name the folders."""
+    import shutil
+
+    copies = [shutil.copytree(runs["dqn_dijkstra_s0"], tmp_path / folder / "run") for folder in ("first", "second")]
+    frame = run_crossplay(copies, "dijkstra", episodes=4, seed=0, show_progress=False).frame
+    labels = list(frame["row_label"])
+    assert len(set(labels)) == 2 and all("folder=" in label for label in labels)
+    assert not frame["same_condition"].any()

@@ -10,14 +10,13 @@ import torch
 
 from sidewalk.algos.dqn import DQN, TRANSITION_KEYS, loss_module_step
 from sidewalk.compose import compose_experiment
-from sidewalk.experiment import experiment_env
 
 
 def build(*overrides: str, seed: int = 0) -> tuple[DQN, object]:
     # Plain DQN unless told (DQNLoss's arithmetic); a later override wins.
     experiment = compose_experiment(["env=discrete", "opponent=dijkstra", "algo=dqn", "noise=0.1",
                                      "algo.advantage_learning=0", *overrides])
-    view = experiment_env(experiment, 8, seed)
+    view = experiment.world.make(8, seed, experiment.device)
     torch.manual_seed(seed)
     return DQN(experiment.algo, view), view
 

@@ -15,7 +15,6 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 import sidewalk.evaluate as evaluation
 from sidewalk.config import validate
-from sidewalk.experiment import experiment_env
 from sidewalk.registry import LEARNERS
 from sidewalk.schema import register_schemas
 
@@ -27,8 +26,8 @@ def learner_and_view(*overrides: str, worlds: int = 64):
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         exp = validate(compose(config_name="config", overrides=["logger=none", *overrides]))
     torch.manual_seed(0)
-    algo = LEARNERS[exp.algo.name](exp.algo, TransformedEnv(experiment_env(exp, 8, 0), RewardSum()))
-    return algo.evaluation_policy(), experiment_env(exp, worlds, 7)
+    algo = LEARNERS[exp.algo.name](exp.algo, TransformedEnv(exp.world.make(8, 0, exp.device), RewardSum()))
+    return algo.evaluation_policy(), exp.world.make(worlds, 7, exp.device)
 
 
 class CountingPolicy(torch.nn.Module):
@@ -117,15 +116,15 @@ def test_one_world_plays_for_all_exactly_where_every_world_plays_the_same_episod
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         exp = validate(compose(config_name="config", overrides=["logger=none", *overrides]))
     torch.manual_seed(0)
-    policy = LEARNERS[exp.algo.name](exp.algo, TransformedEnv(experiment_env(exp, 8, 0), RewardSum())).evaluation_policy()
-    view = experiment_env(exp, 32, 7, env_params=exp.eval_env_params)
+    policy = LEARNERS[exp.algo.name](exp.algo, TransformedEnv(exp.world.make(8, 0, exp.device), RewardSum())).evaluation_policy()
+    view = exp.eval_world.make(32, 7, exp.device)
     plain = evaluation.run_episodes(view, policy, seed=11, record_trajectories=3)
     steps, built = [], []
     step = view.step
     monkeypatch.setattr(view, "step", lambda td: steps.append(1) or step(td))
 
     def one_world():
-        built.append(experiment_env(exp, 1, 7, env_params=exp.eval_env_params))
+        built.append(exp.eval_world.make(1, 7, exp.device))
         return built[-1]
 
     global_rng = torch.get_rng_state()

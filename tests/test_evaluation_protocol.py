@@ -122,14 +122,14 @@ def test_the_largest_bounds_are_those_the_walls_allow():
 def test_the_default_protocol_perturbs_evaluation_and_training_alike():
     experiment = validate(composed())
     assert experiment.evaluation.name == "perturbed"
-    assert (experiment.eval_env_params.start_jitter_rows, experiment.eval_env_params.goal_jitter_rows) == (1, 1)
-    assert (experiment.env_params.start_jitter_rows, experiment.env_params.goal_jitter_rows) == (1, 1)
+    assert (experiment.eval_world.env_params.start_jitter_rows, experiment.eval_world.env_params.goal_jitter_rows) == (1, 1)
+    assert (experiment.world.env_params.start_jitter_rows, experiment.world.env_params.goal_jitter_rows) == (1, 1)
     apart = validate(composed("eval.train_alike=false"))
-    assert apart.env_params.start_jitter_rows == 0 and apart.eval_env_params.start_jitter_rows == 1
+    assert apart.world.env_params.start_jitter_rows == 0 and apart.eval_world.env_params.start_jitter_rows == 1
     nominal = validate(composed("eval=nominal"))
-    assert nominal.env_params.start_jitter_rows == nominal.eval_env_params.start_jitter_rows == 0
+    assert nominal.world.env_params.start_jitter_rows == nominal.eval_world.env_params.start_jitter_rows == 0
     continuous = validate(composed("env=continuous"))
-    assert (continuous.eval_env_params.start_jitter_m, continuous.eval_env_params.heading_jitter_rad) == (0.2, 0.3927)
+    assert (continuous.eval_world.env_params.start_jitter_m, continuous.eval_world.env_params.heading_jitter_rad) == (0.2, 0.3927)
 
 
 @pytest.mark.parametrize(
@@ -144,7 +144,7 @@ def test_the_protocol_bounds_fit_each_scenario_s_walls(overrides, expected):
     experiment = validate(composed(*overrides))
     assert experiment.evaluation.start_jitter_rows == expected
     if "env.layout=random" in overrides:
-        assert experiment.eval_env_params.start_jitter_rows == 0
+        assert experiment.eval_world.env_params.start_jitter_rows == 0
 
 
 @pytest.mark.parametrize(

@@ -26,7 +26,7 @@ from sidewalk.compose import compose as compose_config
 from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.experiment import Trial
-from sidewalk.opponents.policy import read_partner
+from sidewalk.partners.policy import read_partner
 from sidewalk.registry import LEARNERS
 from sidewalk.report.document import write_report
 from sidewalk.report.runs import find_run_folders, load_run

@@ -16,3 +16,15 @@ def test_imports_point_down_the_layers():
                           check=False)
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
     assert "1 kept, 0 broken" in done.stdout
+
+
+def test_the_guide_draws_the_layers_the_contract_holds():
+    """docs/guide/extending.md's drawing of the layers is pyproject.toml's contract, line for line."""
+    import re
+    import tomllib
+
+    contract = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"][0]
+    guide = (ROOT / "docs" / "guide" / "extending.md").read_text()
+    drawing = re.search(r"## The layers\n.*?```text\n(.*?)```", guide, re.DOTALL)
+    assert drawing is not None, "docs/guide/extending.md has no drawing of the layers"
+    assert drawing.group(1).splitlines() == contract["layers"]

@@ -14,7 +14,7 @@ from hydra import compose, initialize_config_dir
 
 from sidewalk.config import validate
 from sidewalk.evaluate import evaluate
-from sidewalk.experiment import EVAL_SEED_OFFSET, Trial, experiment_env
+from sidewalk.experiment import EVAL_SEED_OFFSET, Trial
 from sidewalk.schema import register_schemas
 
 pytestmark = pytest.mark.slow
@@ -28,7 +28,7 @@ def experiment(*overrides: str):
 
 
 def random_policy_success(exp) -> float:
-    view = experiment_env(exp, exp.eval_episodes, exp.seed + EVAL_SEED_OFFSET)
+    view = exp.world.make(exp.eval_episodes, exp.seed + EVAL_SEED_OFFSET, exp.device)
     return evaluate(view, None, seed=exp.seed + EVAL_SEED_OFFSET)["ego/success_rate"]
 
 
@@ -50,7 +50,7 @@ SMALL_SIDEWALK = ["opponent=dijkstra", "env.length_cells=6", "env.observation=ve
 def test_learner_beats_the_random_policy(tmp_path, overrides):
     exp = experiment(*SMALL_SIDEWALK, *overrides)
     baseline = random_policy_success(exp)
-    summary = Trial(exp, tmp_path).run(progress=False)
+    (summary,) = Trial(exp, tmp_path).run(progress=False)
     assert baseline < 0.3  # the task is not solved by chance ...
     assert summary["ego/success_rate"] >= baseline + 0.5, summary  # ... and the learner solves it
 
@@ -59,7 +59,7 @@ def test_trpo_walks_the_continuous_sidewalk_past_the_prm_agent(tmp_path):
     # The first geometry (10 m × 1.5 m, dt 0.1 s) taught every learner to crash into a side wall (issue 9).
     exp = experiment("env=continuous", "opponent=prm", "algo=trpo", "noise=0.01", "iterations=20", "eval_every=0")
     baseline = random_policy_success(exp)
-    summary = Trial(exp, tmp_path).run(progress=False)
+    (summary,) = Trial(exp, tmp_path).run(progress=False)
     assert baseline < 0.1
     assert summary["ego/success_rate"] >= 0.8, summary
     assert summary["ego/wall_collision_rate"] == 0.0, summary

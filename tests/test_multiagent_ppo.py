@@ -63,7 +63,7 @@ def test_policies_act_for_every_agent_on_the_self_play_view(name, domain):
         assert out.get(ACTION).shape == action_spec.shape and action_spec.is_in(out.get(ACTION))
     assert torch.equal(algo.evaluation_policy()(td.clone()).get(ACTION), greedy.get(ACTION))  # deterministic
     assert algo.critic(td.clone()).get(VALUE).shape == (4, n_agents, 1)
-    # A learned partner (sidewalk.opponents.policy) calls the policy with the observation alone.
+    # A learned partner (sidewalk.partners.policy) calls the policy with the observation alone.
     alone = TensorDict({OBS: td.get(OBS)}, batch_size=[4])
     assert torch.equal(algo.evaluation_policy()(alone).get(ACTION), greedy.get(ACTION))
     # The policies run in the collector, and the update takes its (worlds, time) batches.

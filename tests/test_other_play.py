@@ -110,4 +110,4 @@ def test_other_play_needs_self_play_and_a_symmetric_layout():
         validate(compose_config(["other_play=true"]))
     with pytest.raises(ValueError, match="mirror across the centre line"):
         validate(compose_config(["other_play=true", "opponent=self", "algo=iql", "env.layout=door", "env.n_agents=3"]))
-    assert validate(compose_config(["other_play=true", "opponent=self", "algo=iql"])).other_play
+    assert validate(compose_config(["other_play=true", "opponent=self", "algo=iql"])).world.other_play

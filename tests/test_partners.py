@@ -15,8 +15,8 @@ from torchrl.envs.utils import check_env_specs
 from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
-from sidewalk.experiment import EVAL_SEED_OFFSET, Trial, experiment_env
-from sidewalk.opponents.policy import (
+from sidewalk.experiment import EVAL_SEED_OFFSET, Trial
+from sidewalk.partners.policy import (
     PartnerMismatch,
     PolicyOpponent,
     check_partner_of,
@@ -142,8 +142,8 @@ def test_a_partner_from_the_other_domain_or_scenario_fails_before_compute(runs):
 
 def test_policy_pt_describes_its_world(runs):
     partner = read_partner(runs["dqn"])
-    assert (partner.algo_name, partner.domain, partner.opponent, partner.ego) == ("dqn", "discrete", "dijkstra", 0)
-    assert partner.env_params.noise == 0.1
+    assert (partner.algo_name, partner.world.domain, partner.world.opponent, partner.ego) == ("dqn", "discrete", "dijkstra", 0)
+    assert partner.world.env_params.noise == 0.1
     assert read_partner(runs["centralized"]).ego is None
 
 
@@ -153,10 +153,10 @@ def test_a_loaded_partner_acts_as_the_runs_evaluation_policy(runs, name):
     the same worlds, step after step."""
     run_dir = runs[name]
     experiment = load_experiment(run_dir)
-    view = experiment_env(experiment, 16, experiment.seed + EVAL_SEED_OFFSET)
+    view = experiment.world.make(16, experiment.seed + EVAL_SEED_OFFSET, experiment.device)
     policy = load_policy(run_dir, experiment, view)
     core = view.core
-    agent = experiment.ego if experiment.opponent != "centralized" else 0
+    agent = experiment.world.ego if experiment.world.opponent != "centralized" else 0
     partner = PolicyOpponent(core, controlled=(agent,), ego=None, path=run_dir)
     td = view.reset()
     for _ in range(25):
@@ -164,8 +164,8 @@ def test_a_loaded_partner_acts_as_the_runs_evaluation_policy(runs, name):
             td = policy(td)
         played = partner(core._last.clone() if hasattr(core, "_last") else view._last.clone())
         action = td.get("action")
-        if experiment.opponent == "centralized":
-            action = view.decode_action(action)[:, agent] if experiment.domain == "discrete" else action.view(16, -1, 2)[:, agent]
+        if experiment.world.opponent == "centralized":
+            action = view.decode_action(action)[:, agent] if experiment.world.domain == "discrete" else action.view(16, -1, 2)[:, agent]
         assert torch.equal(played.get(("agents", "action"))[:, agent], action)
         td = view.step(td).get("next")
 
@@ -195,7 +195,7 @@ def test_a_single_agent_partner_cannot_play_a_role_without_symmetry(runs, tmp_pa
     """A DQN trained as agent 0 of the three-agent door (here: the sidewalk run's policy.pt relabelled) has no map
     onto agents 1 and 2: the door's roles differ."""
     state = torch.load(runs["dqn"] / "policy.pt", weights_only=True)
-    state["description"]["env_params"].update(layout="door", n_agents=3)
+    state["description"]["world"]["env_params"].update(layout="door", n_agents=3)
     (tmp_path / "door").mkdir()
     torch.save(state, tmp_path / "door" / "policy.pt")
     door = ["env.layout=door", "env.n_agents=3"]
@@ -207,7 +207,7 @@ def test_a_learner_trains_against_a_learned_partner(runs, tmp_path):
     """opponent=policy end to end: DQN as agent 0 against the agent-0 DQN turned to play agent 1."""
     run = train(tmp_path / "vs_dqn", *TINY_DQN, "opponent=policy", f"opponent.path={runs['dqn']}")
     assert (run / "summary.json").exists() and (run / "policy.pt").exists()
-    assert read_partner(run).opponent == "policy"
+    assert read_partner(run).world.opponent == "policy"
 
 
 def test_policy_opponent_fills_only_its_agents(runs):
@@ -237,7 +237,7 @@ def test_self_play_presets_sweep_every_learner_of_their_domain(preset, domain, l
     assert dict(cfg.hydra.sweeper.params) == {"algo": learners, "seed": "0,1,2"}
     for name, job in zip(learners.split(","), jobs):
         experiment = validate(job)
-        assert (experiment.domain, experiment.opponent, experiment.algo.name) == (domain, "self", name)
+        assert (experiment.world.domain, experiment.world.opponent, experiment.algo.name) == (domain, "self", name)
 
 
 def test_a_vector_partner_plays_in_an_image_world_on_the_vector_a_vector_world_shows(runs, tmp_path):

@@ -24,7 +24,7 @@ from matplotlib.image import imread
 from sidewalk.config import opponent_domains
 from sidewalk.envs.render import WALL, colour, draw_grid, draw_plane
 from sidewalk.play import build_server
-from sidewalk.play.command import compose_game_experiment
+from sidewalk.play.command import compose_game_world
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 needs_chromium = pytest.mark.skipif(
@@ -356,10 +356,10 @@ def test_the_partners_named_valid_are_exactly_those_play_takes_in_that_world(run
     named = re.search(r"valid[^:]*: (.*)$", err[0]).group(1).split(", ")
     for choice in opponent_domains():
         if choice in named:
-            compose_game_experiment([f"env={domain}", f"opponent={choice}"])
+            compose_game_world([f"env={domain}", f"opponent={choice}"])
         else:
             with pytest.raises(ValueError, match=f"opponent={choice!r} is"):
-                compose_game_experiment([f"env={domain}", f"opponent={choice}"])
+                compose_game_world([f"env={domain}", f"opponent={choice}"])
 
 
 # test_experiment.py's tiny grid DQN run: finished_run trains it once for the whole suite.

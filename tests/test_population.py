@@ -12,8 +12,8 @@ import torch
 
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.opponents.base import ACTION_KEY, make_opponent
-from sidewalk.opponents.policy import read_partner
-from sidewalk.opponents.population import PARTNERS_DIR, POPULATIONS, PopulationOpponent, population
+from sidewalk.partners.policy import read_partner
+from sidewalk.partners.population import PARTNERS_DIR, POPULATIONS, PopulationOpponent, population
 from sidewalk.run_folder import read_torch_file
 from sidewalk.views import EgoView
 
@@ -111,6 +111,6 @@ def test_the_shipped_partners_are_small_weights_only_files_in_the_wheel(domain, 
         file = PARTNERS_DIR / domain / name / "policy.pt"
         assert file.stat().st_size < 100_000
         read_torch_file(file)  # weights only: raises on anything else
-        assert read_partner(file.parent).opponent == "self"
+        assert read_partner(file.parent).world.opponent == "self"
         relative = str(file.relative_to(ROOT / "sidewalk"))
         assert any(fnmatch.fnmatch(relative, pattern) for pattern in patterns), relative

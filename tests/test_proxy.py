@@ -16,7 +16,7 @@ from sidewalk import datasets
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.envs.base import AGENT_GROUP
 from sidewalk.opponents.base import make_opponent
-from sidewalk.opponents.proxy import ProxyMismatch, ProxyOpponent, demonstrations
+from sidewalk.partners.proxy import ProxyMismatch, ProxyOpponent, demonstrations
 
 # The walker each domain records (as agent 0, the ego of the Gymnasium face) and the partner it walks against.
 # Grid: the Dijkstra planner with its deterministic tie-break; continuous: a keep-right convention walker.
@@ -121,7 +121,7 @@ def test_the_clone_is_cached_beside_the_dataset_and_reused(root, monkeypatch):
     first = proxy_on(root, "discrete", seed=3, epochs=20)
     weights = list((root / "walks" / "discrete-train-v0" / "proxy").glob("*.pt"))
     assert weights
-    import sidewalk.opponents.proxy as proxy_module
+    import sidewalk.partners.proxy as proxy_module
 
     def refuse(*args, **kwargs):
         raise AssertionError("trained again although its weights are cached")

@@ -128,8 +128,8 @@ def test_gallery_covers_every_scenario_in_both_domains():
     for scenario, domain in itertools.product(SCENARIOS, gallery.GALLERY_PLANNERS):
         overrides = gallery.gallery_overrides(scenario, domain)
         assert f"env.layout={scenario}" in overrides
-        experiment, core = episodes.scripted_world(domain, gallery.GALLERY_PLANNERS[domain], 0, overrides)
-        assert experiment.env_params.layout == scenario and core.render(0).ndim == 3
+        world, core = episodes.scripted_world(domain, gallery.GALLERY_PLANNERS[domain], 0, overrides)
+        assert world.env_params.layout == scenario and core.render(0).ndim == 3
 
 
 def test_gallery_writes_a_still_a_gif_and_the_readme(tmp_path, runner):

@@ -228,7 +228,7 @@ def run_trial(tmp_path: Path, *overrides: str) -> tuple[pd.DataFrame, dict]:
             "algo.frames_per_batch=64", "algo.learning_starts=0", "algo.batch_size=32", *overrides,
         ])
     trial = Trial(validate(cfg), tmp_path, OmegaConf.to_container(cfg, resolve=True))
-    summary = trial.run(progress=False, absolute_metric=False)  # the costs are the training's and the last evaluation's
+    (summary,) = trial.run(progress=False, absolute_metric=False)  # the costs are the training's and the last evaluation's
     return pd.read_csv(tmp_path / "metrics.csv"), summary
 
 

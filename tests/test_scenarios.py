@@ -16,7 +16,7 @@ from torchrl.envs.utils import check_env_specs
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.envs.layouts import door_grid, door_plane, scenario_names
 from sidewalk.evaluate import evaluate
-from sidewalk.opponents.team import ScriptedTeam
+from sidewalk.partners.team import ScriptedTeam
 from sidewalk.views import CentralizedView, EgoView
 
 # The settings of each scenario as its preset has them (conf/experiment/<scenario>_<domain>.yaml).

@@ -104,11 +104,10 @@ def test_equal_settings_give_our_dqn_sb3s_network():
     from sidewalk.algos.dqn import DQN
     from sidewalk.bench.training import BASE_OVERRIDES, EQUAL_NETWORK, make_sb3_dqn, sb3_settings
     from sidewalk.compose import compose_experiment
-    from sidewalk.experiment import experiment_env
 
     def our_shapes(*overrides):
         experiment = compose_experiment([*BASE_OVERRIDES, *overrides])
-        algo = DQN(experiment.algo, experiment_env(experiment, 2, 0))
+        algo = DQN(experiment.algo, experiment.world.make(2, 0, experiment.device))
         return [tuple(p.shape) for p in algo.actor.parameters()]
 
     sb3 = make_sb3_dqn({**sb3_settings(2), "buffer_size": 10}, total_frames=1000, seed=0)
@@ -124,14 +123,13 @@ def test_plain_pytorch_reference_is_the_same_math_as_our_step():
     from sidewalk.algos.dqn import DQN
     from sidewalk.bench.training import BASE_OVERRIDES, EQUAL_NETWORK, PlainQNetwork, plain_gradient_steps
     from sidewalk.compose import compose_experiment
-    from sidewalk.experiment import experiment_env
 
     for extra, mflop in ((EQUAL_NETWORK, 605), ((), 864)):
         row = plain_gradient_steps(None, 1, extra, steps=4)
         assert row["learner"] == "plain" and row["cpu_ms_per_gradient_step"] > 0
         assert row["note"].startswith(f"{mflop} MFLOP a step")
         experiment = compose_experiment([*BASE_OVERRIDES, *extra])
-        ours = DQN(experiment.algo, experiment_env(experiment, 2, 0))
+        ours = DQN(experiment.algo, experiment.world.make(2, 0, experiment.device))
         plain = PlainQNetwork(ours.observation_spec.shape, 4, experiment.algo.hidden, experiment.algo.dueling)
         assert sorted(p.numel() for p in plain.parameters()) == sorted(p.numel() for p in ours.q_network.parameters())
 

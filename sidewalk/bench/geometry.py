@@ -76,7 +76,6 @@ def untrained(
 ) -> list[dict]:
     """Ego (or team) success of each learner's untrained sampling policy, per opponent."""
     from sidewalk.evaluate import evaluate
-    from sidewalk.experiment import experiment_env
     from sidewalk.registry import LEARNERS
 
     rows = []
@@ -84,7 +83,7 @@ def untrained(
         for opponent in opponents:
             experiment = _experiment(opponent, algo_name, overrides)
             torch.manual_seed(seed)
-            view = experiment_env(experiment, episodes, seed)
+            view = experiment.world.make(episodes, seed, experiment.device)
             algo = LEARNERS[algo_name](experiment.algo, view)
             metrics = evaluate(view, algo.collection_policy(), seed=seed, deterministic=False)  # it samples
             outcome = _outcome(metrics, opponent)
@@ -107,12 +106,11 @@ def scripted(
 ) -> list[dict]:
     """Ego (team) return and success of fixed policies, per opponent: walking must pay more than crashing."""
     from sidewalk.evaluate import evaluate
-    from sidewalk.experiment import experiment_env
 
     rows = []
     for opponent in opponents:
         experiment = _experiment(opponent, "trpo", overrides)
-        view = experiment_env(experiment, episodes, seed)
+        view = experiment.world.make(episodes, seed, experiment.device)
         for name, action in SCRIPTED.items():
             policy = FixedAction(action, n_agents=view.n_agents if opponent == "centralized" else 1)
             outcome = _outcome(evaluate(view, policy, seed=seed), opponent)
@@ -127,7 +125,7 @@ def prm_passes(overrides: Sequence[str], seeds: int = PRM_SEEDS) -> list[dict]:
     from sidewalk.views import EgoView
 
     experiment = _experiment("prm", "trpo", [*overrides, "noise=0"])
-    params = experiment.env_params
+    params = experiment.world.env_params
     base = ContinuousSidewalkEnv(1, params=params).layout
     midway = (base.length_m / 2, base.width_m / 2)
     still_layout = replace(base, starts=(midway, base.starts[1]))
@@ -141,7 +139,7 @@ def prm_passes(overrides: Sequence[str], seeds: int = PRM_SEEDS) -> list[dict]:
         steps_other = []
         for seed in tqdm(range(seeds), desc=case, leave=False, file=sys.stderr):
             core = ContinuousSidewalkEnv(1, seed=seed, params=replace(params, layout=layout))
-            view = EgoView(core, opponent="prm", opponent_kwargs=experiment.opponent_params)
+            view = EgoView(core, opponent="prm", opponent_kwargs=experiment.world.opponent_params)
             policy = FixedAction(action)
             td = view.reset()
             for step in range(params.max_steps):

@@ -29,7 +29,6 @@ def run(algos: tuple[str, ...] = ("ippo", "mappo"), repeats: int = 4, threads: l
     from torchrl.envs import RewardSum, TransformedEnv
 
     from sidewalk.compose import compose_experiment
-    from sidewalk.experiment import experiment_env
     from sidewalk.registry import LEARNERS
 
     torch.set_num_threads((threads or [1])[0])
@@ -38,7 +37,7 @@ def run(algos: tuple[str, ...] = ("ippo", "mappo"), repeats: int = 4, threads: l
         built = {}
         for name, overrides in SETTINGS.items():
             experiment = compose_experiment(["env=discrete", "opponent=self", f"algo={algo_name}", "noise=0", *overrides])
-            env = TransformedEnv(experiment_env(experiment, experiment.num_envs, 0), RewardSum())
+            env = TransformedEnv(experiment.world.make(experiment.num_envs, 0, experiment.device), RewardSum())
             algo = LEARNERS[algo_name](experiment.algo, env)
             built[name] = (env, algo, experiment.algo.frames_per_batch // experiment.num_envs)
         seconds: dict[str, list[float]] = {name: [] for name in SETTINGS}

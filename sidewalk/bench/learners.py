@@ -15,7 +15,7 @@ rescaled to [-1, 1]. Setups of the peers (ours always run the config):
   (``matched_settings``); observations are normalised exactly when our learner normalises them.
 
 Every learner is evaluated alike: after training, one deterministic episode in each of ``eval_episodes`` worlds of
-the evaluation view ``Trial`` builds (``experiment_env(experiment, eval_episodes, seed + EVAL_SEED_OFFSET)``), through
+the evaluation view ``Trial`` builds (``experiment.world.make(eval_episodes, seed + EVAL_SEED_OFFSET, experiment.device)``), through
 ``sidewalk.evaluate.evaluate``. ``success``: ``ego/success_rate`` (``team/success_rate`` with ``--opponent
 centralized``, where the learner plays every agent); ``return``: the ego's undiscounted return (centralized: the
 mean over agents); ``seconds``: wall clock of building and training, evaluation excluded, one torch thread.
@@ -116,7 +116,7 @@ def run_ours(algo: str, opponent: str, seed: int, noise: float, frames: int, eva
 
     with tempfile.TemporaryDirectory() as run_dir:
         start = time.perf_counter()
-        summary = Trial(experiment, run_dir).run(progress=False, on_evaluation=on_evaluation)
+        (summary,) = Trial(experiment, run_dir).run(progress=False, on_evaluation=on_evaluation)
         seconds = time.perf_counter() - start - evaluation["seconds"]
     algo_cfg = experiment.algo
     settings = (f"runners/main.py env=continuous opponent={opponent} algo={algo} noise={noise}: "
@@ -198,11 +198,11 @@ def peer_settings_text(library: str, settings: dict[str, Any], normalize: bool) 
 
 
 def _face_kwargs(experiment) -> dict[str, Any]:
-    """What the gymnasium face needs to build the view ``experiment_env`` builds for this experiment."""
-    kwargs: dict[str, Any] = {"opponent": experiment.opponent, "params": experiment.env_params}
-    if experiment.opponent != "centralized":
-        kwargs.update(ego=experiment.ego, end_on_ego_done=experiment.end_on_ego_done,
-                      opponent_kwargs=experiment.opponent_params)
+    """What the gymnasium face needs to build the view ``experiment.world.make`` builds for this experiment."""
+    kwargs: dict[str, Any] = {"opponent": experiment.world.opponent, "params": experiment.world.env_params}
+    if experiment.world.opponent != "centralized":
+        kwargs.update(ego=experiment.world.ego, end_on_ego_done=experiment.world.end_on_ego_done,
+                      opponent_kwargs=experiment.world.opponent_params)
     return kwargs
 
 
@@ -239,7 +239,7 @@ def run_peer(algo: str, library: str, setup: str, opponent: str, seed: int, nois
     from stable_baselines3.common.vec_env import VecNormalize
 
     from sidewalk.evaluate import evaluate
-    from sidewalk.experiment import EVAL_SEED_OFFSET, experiment_env
+    from sidewalk.experiment import EVAL_SEED_OFFSET
 
     experiment = compose_experiment(experiment_overrides(algo, opponent, seed, noise, eval_episodes, num_envs, threads))
     settings, normalize = SETTINGS[setup](experiment)
@@ -254,7 +254,7 @@ def run_peer(algo: str, library: str, setup: str, opponent: str, seed: int, nois
         model = peer_class(library)("MlpPolicy", envs, seed=seed, device="cpu", verbose=0, **settings)
         model.learn(total_timesteps=total)
         seconds = time.perf_counter() - start
-        view = experiment_env(experiment, experiment.eval_episodes, seed + EVAL_SEED_OFFSET)
+        view = experiment.world.make(experiment.eval_episodes, seed + EVAL_SEED_OFFSET, experiment.device)
         metrics = evaluate(view, sb3_deterministic_policy(model, view), seed=seed + EVAL_SEED_OFFSET)
     return {"algo": algo.upper(), "learner": library, "setup": setup, "seed": seed, "frames": model.num_timesteps,
             **_outcome(metrics), "seconds": seconds, "settings": peer_settings_text(library, settings, normalize)}

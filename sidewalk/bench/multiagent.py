@@ -122,14 +122,14 @@ class Learner:
 def ours_learner(num_envs: int, steps: int, seed: int = SEED) -> Learner:
     """Our IPPO self-play on the continuous sidewalk as ``Trial`` builds it, at ``num_envs`` worlds and
     ``num_envs × steps`` frames an iteration; IPPO's defaults otherwise."""
-    from sidewalk.experiment import collector_frames_per_batch, experiment_env
+    from sidewalk.experiment import collector_frames_per_batch
     from sidewalk.registry import LEARNERS
 
     experiment = compose_experiment(
         [*OURS_OVERRIDES, f"num_envs={num_envs}", f"algo.frames_per_batch={num_envs * steps}", f"seed={seed}"]
     )
     torch.manual_seed(seed)
-    env = TransformedEnv(experiment_env(experiment, experiment.num_envs, experiment.seed), RewardSum())
+    env = TransformedEnv(experiment.world.make(experiment.num_envs, experiment.seed, experiment.device), RewardSum())
     algo = LEARNERS[experiment.algo.name](experiment.algo, env, device=experiment.device)
     frames_per_batch = collector_frames_per_batch(experiment)
     collector = Collector(env, algo.collection_policy(), frames_per_batch=frames_per_batch, total_frames=-1,

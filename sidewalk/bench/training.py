@@ -376,10 +376,11 @@ def sb3_greedy_policy(model):
 
 def _eval_view(seed: int):
     """The evaluation view and seed that ``Trial`` uses for this seed, built the same way."""
-    from sidewalk.experiment import EVAL_SEED_OFFSET, experiment_env
+    from sidewalk.experiment import EVAL_SEED_OFFSET
 
     experiment = compose_experiment([*BASE_OVERRIDES, f"seed={seed}"])
-    return experiment_env(experiment, experiment.eval_episodes, seed + EVAL_SEED_OFFSET), seed + EVAL_SEED_OFFSET
+    seed += EVAL_SEED_OFFSET
+    return experiment.world.make(experiment.eval_episodes, seed, experiment.device), seed
 
 
 def sb3_time_to_target(
@@ -509,11 +510,9 @@ def plain_gradient_steps(num_envs: int | None, threads: int, extra: Sequence[str
     import torch.nn.functional as F
     from torch.utils.flop_counter import FlopCounterMode
 
-    from sidewalk.experiment import experiment_env
-
     experiment = compose_experiment(our_overrides(num_envs, threads, 0, extra))
     cfg = experiment.algo
-    view = experiment_env(experiment, 1, 0)
+    view = experiment.world.make(1, 0, experiment.device)
     shape = view.full_observation_spec_unbatched["observation"].shape
     n_actions = int(view.full_action_spec_unbatched["action"].space.n)
     loss_function = {"l2": F.mse_loss, "l1": F.l1_loss, "smooth_l1": F.smooth_l1_loss}[cfg.loss_function]

@@ -177,7 +177,7 @@ class SidewalkEnvBase(EnvBase):
     # The name in RewardParams of the weight of the domain's shaping term; None: the domain weighs its terms itself.
     shaping_weight_name: ClassVar[str | None]
     # Observation kinds the env can compute for a partner whatever its own ``params.observation``: a learned partner
-    # trained on one of them plays in this env (sidewalk.opponents.policy), reading it from ``observe_as`` applied to
+    # trained on one of them plays in this env (sidewalk.partners.policy), reading it from ``observe_as`` applied to
     # the output's ``PARTNER_OBSERVATION_KEYS``.
     PARTNER_OBSERVATIONS: ClassVar[tuple[str, ...]] = ()
     PARTNER_OBSERVATION_KEYS: ClassVar[tuple[tuple[str, str], ...]] = ()

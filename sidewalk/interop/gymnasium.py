@@ -1,5 +1,10 @@
 """Gymnasium face of the Sidewalk views: ``sidewalk/Discrete-v0`` and ``sidewalk/Continuous-v0``.
 
+Its worlds by default: the scenario's own starts and goals, so at noise 0 every episode is the same one (the paper's
+evaluation, ``eval=nominal``). ``runners/main.py`` trains and evaluates under ``eval=perturbed``; its worlds are
+``start_jitter_rows=1, goal_jitter_rows=1`` (grid) and ``start_jitter_m=0.2, goal_jitter_m=0.2,
+heading_jitter_rad=0.3927`` (continuous, the sidewalk), given as keywords here.
+
 Importing this module (``import sidewalk`` does) registers both ids::
 
     env = gymnasium.make("sidewalk/Discrete-v0", opponent="dijkstra", noise=0.1)
@@ -37,6 +42,7 @@ observation with reward 0, cost 0 and ``terminated = truncated = False``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import reprlib
 from collections.abc import Mapping
@@ -52,17 +58,14 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, TensorSpec
 
 from sidewalk._checks import check_choice
+from sidewalk.envs import CORE_ENVS
 from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS, RENDER_MODES, SidewalkEnvBase
-from sidewalk.envs.grid import DiscreteSidewalkEnv
 from sidewalk.envs.unicycle import OBSERVATION_FIELDS, ContinuousSidewalkEnv
 from sidewalk.interop.window import FrameWindow
 from sidewalk.registry import OPPONENTS
 from sidewalk.views import WORLD, CentralizedView, EgoView, view_for_opponent
+from sidewalk.world import World
 
-DOMAINS: dict[str, type[SidewalkEnvBase]] = {
-    "discrete": DiscreteSidewalkEnv,
-    "continuous": ContinuousSidewalkEnv,
-}
 ENV_IDS = {"discrete": "sidewalk/Discrete-v0", "continuous": "sidewalk/Continuous-v0"}
 CENTRALIZED = "centralized"
 RENDER_FPS = 10
@@ -86,9 +89,9 @@ def build_view(
     """The TorchRL view behind the gymnasium face: an ``EgoView`` against ``opponent``, or a ``CentralizedView``
     for ``opponent="centralized"`` (which takes no ``ego``, ``end_on_ego_done`` or ``opponent_kwargs``).
     ``shield=True`` puts the safety shield in front of the learner's actions (``sidewalk.views``)."""
-    check_choice("domain", domain, DOMAINS)
+    check_choice("domain", domain, CORE_ENVS)
     check_choice("opponent", opponent, [*OPPONENTS, CENTRALIZED])
-    core = DOMAINS[domain](num_envs=num_envs, device=device, **env_kwargs)
+    core = CORE_ENVS[domain](num_envs=num_envs, device=device, **env_kwargs)
     if opponent == CENTRALIZED:
         given = {"ego": ego, "end_on_ego_done": end_on_ego_done, "opponent_kwargs": opponent_kwargs}
         extra = [name for name, value in given.items() if value is not None]
@@ -98,6 +101,19 @@ def build_view(
         core, opponent, 0 if ego is None else ego, shield=shield, end_on_ego_done=bool(end_on_ego_done),
         opponent_kwargs=opponent_kwargs,
     )
+
+
+def world_kwargs(world: World) -> dict[str, Any]:
+    """The ``gymnasium.make`` keywords of ``world`` (``sidewalk.world.World``): its partner and view, and every core
+    env parameter; ``gymnasium.make(ENV_IDS[world.domain], **world_kwargs(world))`` plays its worlds. A world the
+    face cannot show (self-play, other-play) raises naming it."""
+    if world.opponent == "self" or world.other_play:
+        raise ValueError(f"the Gymnasium face shows one learner's view; opponent={world.opponent!r} "
+                         f"other_play={world.other_play} is every agent's (sidewalk.interop.pettingzoo)")
+    view = {"opponent": world.opponent, "shield": world.shield}
+    if world.opponent != CENTRALIZED:
+        view.update(ego=world.ego, end_on_ego_done=world.end_on_ego_done, opponent_kwargs=dict(world.opponent_params))
+    return {**view, **dataclasses.asdict(world.env_params)}
 
 
 def _continuous_observation_bounds(core: SidewalkEnvBase) -> tuple[np.ndarray, np.ndarray]:

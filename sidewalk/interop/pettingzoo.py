@@ -1,5 +1,10 @@
 """PettingZoo face of the Sidewalk cores: ``parallel_env(domain="discrete" | "continuous", **env_kwargs)``.
 
+Its worlds by default: the scenario's own starts and goals, so at noise 0 every episode is the same one (the paper's
+evaluation, ``eval=nominal``). ``runners/main.py`` trains and evaluates under ``eval=perturbed``; its worlds are
+``start_jitter_rows=1, goal_jitter_rows=1`` (grid) and ``start_jitter_m=0.2, goal_jitter_m=0.2,
+heading_jitter_rad=0.3927`` (continuous, the sidewalk), given as keywords here.
+
 Every agent acts each step (``ParallelEnv``). Agents are named ``agent_0``, ``agent_1``, ... in the core's order;
 each one's observation and action are the core's per-agent ones (ego-centric image or vector; (acceleration, turn)).
 Following PettingZoo, an agent leaves ``env.agents`` once it is terminated (reached its goal or crashed) or
@@ -37,8 +42,9 @@ from gymnasium import spaces
 from tensordict import TensorDict, TensorDictBase
 
 from sidewalk._checks import check_choice
+from sidewalk.envs import CORE_ENVS
 from sidewalk.envs.base import AGENT_GROUP, INFO_KEYS
-from sidewalk.interop.gymnasium import DOMAINS, RENDER_FPS, WINDOW_RENDER_MODES, agent_spaces, checked_action
+from sidewalk.interop.gymnasium import RENDER_FPS, WINDOW_RENDER_MODES, agent_spaces, checked_action
 from sidewalk.interop.window import FrameWindow
 
 
@@ -63,13 +69,13 @@ class SidewalkParallelEnv(ParallelEnv):
         device: str | torch.device = "cpu",
         **env_kwargs: Any,
     ) -> None:
-        check_choice("domain", domain, DOMAINS)
+        check_choice("domain", domain, CORE_ENVS)
         if render_mode is not None:
             check_choice("render_mode", render_mode, WINDOW_RENDER_MODES)
         self.render_mode = render_mode
         self._window = FrameWindow(f"sidewalk_v0 ({domain})", RENDER_FPS) if render_mode == "human" else None
         self.domain = domain
-        self.core = DOMAINS[domain](num_envs=1, device=device, **env_kwargs)
+        self.core = CORE_ENVS[domain](num_envs=1, device=device, **env_kwargs)
         self.possible_agents = self.core.agent_names
         self.agents: list[str] = []
         self._index = {name: index for index, name in enumerate(self.possible_agents)}

@@ -8,7 +8,7 @@ opponent for every world, or a ``ReplicaOpponent`` that hands each replica's blo
 from __future__ import annotations
 
 import inspect
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
 import torch
@@ -180,6 +180,22 @@ def env_domain(env: SidewalkEnvBase | ReplicaEnv) -> str:
     if isinstance(env, ReplicaEnv):
         env = env.core
     return "discrete" if isinstance(env, DiscreteSidewalkEnv) else "continuous"
+
+
+# What every opponent's constructor takes before its own settings.
+OPPONENT_PLACES = ("self", "env", "controlled", "ego")
+
+
+def opponent_config(name: str, given: Mapping[str, Any]) -> dict[str, Any]:
+    """The opponent ``name``'s settings as it plays with ``given``: its constructor's defaults overridden by
+    ``given`` (every setting named, so that a changed default shows); ``given`` itself for a name no opponent has
+    (``centralized``). Two partners are the same where their names and these settings are."""
+    if name not in OPPONENTS:
+        return dict(given)
+    parameters = inspect.signature(OPPONENTS[name].__init__).parameters.values()
+    defaults = {p.name: p.default for p in parameters
+                if p.name not in OPPONENT_PLACES and p.default is not inspect.Parameter.empty}
+    return {**defaults, **given}
 
 
 def opponent_class(name: str) -> type[Opponent]:

@@ -15,25 +15,25 @@ def default_dataset_id(domain: str, opponent: str) -> str:
     return f"sidewalk-play/{domain}-{opponent.replace('_', '-')}-v0"
 
 
-def compose_game_experiment(overrides: Sequence[str]):
-    """The validated experiment of ``overrides`` (as ``runners/main.py`` composes and checks them), for its world and
-    partner; Hydra's and the config's errors become one ``ValueError`` line, as ``runners/main.py`` prints them."""
+def compose_game_world(overrides: Sequence[str]):
+    """The validated World of ``overrides`` (as ``runners/main.py`` composes and checks its world and partner);
+    Hydra's and the config's errors become one ``ValueError`` line, as ``runners/main.py`` prints them."""
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from sidewalk.compose import compose, fitting_algo, one_line
-    from sidewalk.config import DOMAINS, validate
+    from sidewalk.compose import compose, one_line
+    from sidewalk.config import DOMAINS, validate_world
 
     chosen = dict(item.partition("=")[::2] for item in overrides)  # the last of a key wins, as in Hydra
     domain = chosen.get("env", "discrete")
     if "opponent" in chosen and domain in DOMAINS:
         check_partner(chosen["opponent"], domain)  # before Hydra, whose options for an unknown one are not partners
     try:
-        cfg = compose([f"algo={fitting_algo(domain)}", *overrides])
+        cfg = compose(overrides)
     except (HydraException, OmegaConfBaseException) as error:
         raise ValueError(one_line(error)) from None
     check_partner(cfg.opponent.name, cfg.env.domain)
-    return validate(cfg)
+    return validate_world(cfg)
 
 
 def build_server(
@@ -48,13 +48,13 @@ def build_server(
 ) -> PlayServer:
     """The server of one game of the world and partner ``overrides`` name; ``ValueError`` (bad config, partner,
     dataset) or ``OSError`` (the port) before it listens."""
-    experiment = compose_game_experiment(overrides)
+    world = compose_game_world(overrides)
     recording = None
     if record:
-        recording = Recording(dataset_id or default_dataset_id(experiment.domain, experiment.opponent),
+        recording = Recording(dataset_id or default_dataset_id(world.domain, world.opponent),
                               None if datasets is None else str(datasets))
     try:
-        game = Game(experiment, recording, seed=seed)
+        game = Game(world, recording, seed=seed)
     except ModuleNotFoundError as error:
         if error.name != "minari":
             raise

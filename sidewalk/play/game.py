@@ -11,16 +11,17 @@ from __future__ import annotations
 import base64
 import io
 import threading
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium
 import numpy as np
 
-from sidewalk.config import LEARNER_PLAYS_ALL, Experiment
+from sidewalk.config import LEARNER_PLAYS_ALL
 from sidewalk.envs.base import OUTCOME_WORDS
-from sidewalk.interop.gymnasium import ENV_IDS
+from sidewalk.interop.gymnasium import ENV_IDS, world_kwargs
 from sidewalk.registry import OPPONENTS
+from sidewalk.world import World
 
 GRID_MOVES = ("up", "down", "left", "right")  # the grid's actions UP, DOWN, LEFT, RIGHT, in that order
 DIRECTIONS = (-1, 0, 1)  # continuous: each key axis is released (0), or held one way (±1)
@@ -55,14 +56,6 @@ class Recording:
     data_path: str | None = None
 
 
-def env_kwargs(experiment: Experiment) -> dict[str, Any]:
-    """The ``gymnasium.make`` keywords of the experiment's world and partner (the core's every parameter); the
-    episode ends when the person's agent is done."""
-    # The person's episode ends with their own outcome: a grid ego at its goal could not move on.
-    return {"opponent": experiment.opponent, "ego": experiment.ego, "end_on_ego_done": True,
-            "opponent_kwargs": dict(experiment.opponent_params), **asdict(experiment.env_params)}
-
-
 def frame_png(frame: np.ndarray) -> str:
     """An RGB frame as a ``data:`` URL of a PNG the page shows as it is."""
     from matplotlib.image import imsave
@@ -75,10 +68,12 @@ def frame_png(frame: np.ndarray) -> str:
 class Game:
     """The ego of one world, played by keys; ``reset`` and ``step`` return what the page shows (``state``)."""
 
-    def __init__(self, experiment: Experiment, recording: Recording | None = None, seed: int = 0) -> None:
-        check_partner(experiment.opponent, experiment.domain)
-        self.domain = experiment.domain
-        self.kwargs = env_kwargs(experiment)
+    def __init__(self, world: World, recording: Recording | None = None, seed: int = 0) -> None:
+        check_partner(world.opponent, world.domain)
+        self.domain = world.domain
+        # The person's episode ends with their own outcome (a grid ego at its goal could not move on); a person
+        # walks unshielded.
+        self.kwargs = world_kwargs(world.replace(end_on_ego_done=True, shield=False))
         self.env = gymnasium.make(ENV_IDS[self.domain], render_mode="rgb_array", **self.kwargs)
         self.recording = recording
         if recording is not None:

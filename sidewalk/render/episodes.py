@@ -16,7 +16,7 @@ def rollout_run(run_dir: Path, episode: int) -> tuple[list[np.ndarray], str]:
     import torch
     from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-    from sidewalk.experiment import EVAL_SEED_OFFSET, experiment_env
+    from sidewalk.experiment import EVAL_SEED_OFFSET, make_eval_view
     from sidewalk.report.checkpoints import load_experiment, load_policy
 
     experiment = load_experiment(run_dir)
@@ -25,7 +25,7 @@ def rollout_run(run_dir: Path, episode: int) -> tuple[list[np.ndarray], str]:
             f"--episode={episode} is out of range; the run evaluates episodes 0..{experiment.eval_episodes - 1}"
         )
     seed = experiment.seed + EVAL_SEED_OFFSET
-    env = experiment_env(experiment, experiment.eval_episodes, seed)
+    env = make_eval_view(experiment)  # the evaluation's worlds (its protocol's), seeded as the evaluation seeds them
     policy = load_policy(run_dir, experiment, env)
     env.set_seed(seed)  # as sidewalk.evaluate.run_episodes does, so the episode is the evaluation's own
     td = env.reset()
@@ -52,15 +52,13 @@ class Episode(NamedTuple):
 
 
 def scripted_world(domain: str, opponent: str, seed: int, overrides: list[str]):
-    """The validated experiment config of scripted agents, and one world (a core env) built from it."""
-    from sidewalk.compose import compose_experiment, fitting_algo
-    from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
+    """The validated World of scripted agents (``runners/main.py``'s config of ``overrides``), and one world of it
+    (a core env)."""
+    from sidewalk.compose import compose
+    from sidewalk.config import validate_world
 
-    experiment = compose_experiment(
-        [f"env={domain}", f"opponent={opponent}", f"algo={fitting_algo(domain)}", f"seed={seed}", *overrides]
-    )
-    core_cls = DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
-    return experiment, core_cls(1, device="cpu", seed=seed, params=experiment.env_params)
+    world = validate_world(compose([f"env={domain}", f"opponent={opponent}", f"seed={seed}", *overrides]))
+    return world, world.core(1, seed=seed)
 
 
 def play_scripted(
@@ -89,13 +87,13 @@ def play_scripted(
         )
     if ego not in OPPONENTS:
         raise ValueError(f"--ego={ego!r} is not valid; valid: {', '.join(map(repr, OPPONENTS))}")
-    experiment, core = scripted_world(domain, opponent, seed, overrides)
+    world, core = scripted_world(domain, opponent, seed, overrides)
     others = tuple(agent for agent in range(core.n_agents) if agent != 0)
     # The configured parameters belong to the opponent's class; an ego of the same class gets them too.
-    ego_params = experiment.opponent_params if ego == opponent else {}
+    ego_params = world.opponent_params if ego == opponent else {}
     players = [
         make_opponent(ego, core, controlled=(0,), ego=others[0] if len(others) == 1 else None, **ego_params),
-        make_opponent(opponent, core, controlled=others, ego=0, **experiment.opponent_params),
+        make_opponent(opponent, core, controlled=others, ego=0, **world.opponent_params),
     ]
     # Grid positions are cells, one agent wide; continuous ones metres, an agent 2·radius wide.
     width = 1.0 if domain == "discrete" else 2 * core.params.agent_radius_m

@@ -82,7 +82,7 @@ def replay(run: Run, episodes: int) -> Replay:
     replayed = summarize(record)
     keys = [k for k in replayed if k.endswith(("success_rate", "collision_rate")) and k in run.summary]
     matches = all(math.isclose(replayed[k], float(run.summary[k]), abs_tol=1e-6) for k in keys)
-    return Replay(run, record, env.core.layout, experiment.domain, matches)
+    return Replay(run, record, env.core.layout, experiment.world.domain, matches)
 
 
 def representative_run(condition: Condition) -> Run | None:

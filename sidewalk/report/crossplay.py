@@ -243,7 +243,24 @@ def _br_prox_text(members: Sequence[str], best: dict[str, float]) -> str:
 
 
 def _heldout(frame: pd.DataFrame) -> pd.DataFrame:
-    return frame[frame["heldout"].astype(bool) & (frame["skipped"] == "")]
+    """The held-out cells played with a partner the row never met in training (a matrix made before that was known
+    has no ``met_in_training`` column: every cell counts)."""
+    return frame[frame["heldout"].astype(bool) & (frame["skipped"] == "") & ~_met(frame)]
+
+
+def _met(frame: pd.DataFrame) -> pd.Series:
+    return frame.get("met_in_training", pd.Series(False, index=frame.index)).fillna(False).astype(bool)
+
+
+def _met_text(frame: pd.DataFrame) -> str:
+    """Which held-out partners some row met in training, left out of the score for that row."""
+    met = frame[frame["heldout"].astype(bool) & _met(frame)]
+    if met.empty:
+        return "none of which any learner met in training"
+    named = "; ".join(f"`{partner}` by {', '.join(_ordered(cells['row_label']))}"
+                      for partner, cells in met.groupby("partner_label", sort=False))
+    return (f"left out where a row trained with one ({named}: {len(met)} of "
+            f"{int(frame['heldout'].astype(bool).sum())} cells)")
 
 
 def adhoc_scores(frame: pd.DataFrame) -> dict[str, pd.DataFrame]:
@@ -286,9 +303,9 @@ def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None, respo
         f"{sub} Ad-hoc score: partners never met",
         "",
         (
-            f"Team success with every partner of the held-out population ({partners}), none of which any learner met "
-            "in training: the interquartile mean over each condition's runs × partners, with its 95 % "
-            "stratified-bootstrap interval over runs (seeds)."
+            f"Team success with every partner of the held-out population ({partners}), {_met_text(frame)}: the "
+            "interquartile mean over each condition's runs × partners, with its 95 % stratified-bootstrap interval "
+            "over runs (seeds)."
         ),
         "",
         _br_prox_text(heldout, best),

@@ -47,8 +47,8 @@ from benchmarl.environments.common import Task, TaskClass
 from torchrl.data import Composite
 from torchrl.envs import DTypeCastTransform, EnvBase, ObservationNorm, PermuteTransform, Transform
 
+from sidewalk.envs import CORE_ENVS
 from sidewalk.envs.rewards import RewardParams
-from sidewalk.interop.gymnasium import DOMAINS
 from sidewalk.schema import SELFPLAY_PROGRESS
 from sidewalk.views.selfplay import SelfPlayView
 
@@ -69,10 +69,10 @@ def make_core(config: dict[str, Any], num_envs: int, seed: int | None, device: A
     if unknown:
         raise ValueError(f"sidewalk task config: unknown key(s) {unknown}; valid: {list(TASK_CONFIG_KEYS)}")
     domain = config["domain"]
-    if domain not in DOMAINS:
-        raise ValueError(f"sidewalk task config: domain={domain!r} is not valid; valid: {list(DOMAINS)}")
+    if domain not in CORE_ENVS:
+        raise ValueError(f"sidewalk task config: domain={domain!r} is not valid; valid: {list(CORE_ENVS)}")
     reward = {"c_progress": SELFPLAY_PROGRESS[domain], **(config.get("reward") or {})}
-    return DOMAINS[domain](
+    return CORE_ENVS[domain](
         num_envs, device=device, seed=seed, noise=float(config.get("noise", 0.0)), rewards=RewardParams(**reward),
         **(config.get("env") or {}),
     )

@@ -24,7 +24,6 @@ what happens to crashed agents and how far starts and goals were moved may diffe
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,15 +32,13 @@ from typing import Any
 import torch
 from tensordict import TensorDict, TensorDictBase
 
+from sidewalk.envs import core_class
 from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase
 from sidewalk.opponents.base import ACTION_KEY, Opponent, env_domain
 from sidewalk.symmetry import turn_observation
+from sidewalk.world import MAY_DIFFER, World
 
 OBSERVATION_KEY = (AGENT_GROUP, "observation")
-# Settings a partner may have been trained under differently: they change the game's payoffs, noise or where its
-# episodes start (the jitter of an evaluation protocol), not what an observation means or what an action does.
-MAY_DIFFER = ("noise", "rewards", "max_steps", "remove_crashed", "check_actions", "start_jitter_rows",
-              "goal_jitter_rows", "start_jitter_m", "goal_jitter_m", "heading_jitter_rad")
 GRID_HALF_TURN_ACTIONS = (1, 0, 3, 2)  # UP, DOWN, LEFT, RIGHT turned by half a turn: DOWN, UP, RIGHT, LEFT
 
 
@@ -56,62 +53,31 @@ class Partner:
     path: Path
     algo_name: str
     algo_config: Any  # the learner's Config dataclass
-    domain: str
-    env_params: Any  # DiscreteParams | ContinuousParams
-    opponent: str  # what it trained against: a scripted opponent, "centralized", "self", "policy"
-    ego: int | None  # the agent it played (single-agent learners); None: every agent
+    world: World  # the world it trained in (its opponent: a scripted one, a partner, "centralized" or "self")
     state: dict[str, Any]  # the learner's policy state (``Algorithm.load_policy_state_dict``)
 
     @property
     def plays_every_agent(self) -> bool:
-        return self.opponent in ("self", "centralized")
+        return self.world.learner_plays_every_agent
+
+    @property
+    def ego(self) -> int | None:
+        """The agent it played (single-agent learners); None: every agent."""
+        return None if self.plays_every_agent else self.world.ego
 
     @property
     def label(self) -> str:
-        if self.opponent in ("self", "centralized"):
-            return f"{self.algo_name} {'self-play' if self.opponent == 'self' else 'centralized'}"
-        return f"{self.algo_name} vs {self.opponent}"
-
-
-def policy_description(experiment: Any) -> dict[str, Any]:
-    """The part of ``policy.pt`` that says which world its networks were trained on (see ``read_partner``)."""
-    return {
-        "algo_name": experiment.algo.name,
-        "algo": dataclasses.asdict(experiment.algo),
-        "domain": experiment.domain,
-        "env_params": dataclasses.asdict(experiment.env_params),
-        "opponent": experiment.opponent,
-        "ego": experiment.ego,
-    }
-
-
-def saved_description(run_dir: str | Path) -> dict[str, Any]:
-    """``policy_description`` of a run folder from before ``policy.pt`` described its world, from its ``config.yaml``."""
-    from omegaconf import OmegaConf
-
-    from sidewalk.run_folder import read_saved_config
-    from sidewalk.schema import env_params_of
-
-    cfg = read_saved_config(run_dir)
-    return {
-        "algo_name": cfg.algo.name,
-        "algo": dataclasses.asdict(OmegaConf.to_object(cfg.algo)),
-        "domain": cfg.env.domain,
-        "env_params": dataclasses.asdict(env_params_of(cfg)),
-        "opponent": cfg.opponent.name,
-        "ego": cfg.opponent.ego,
-    }
+        if self.plays_every_agent:
+            return f"{self.algo_name} {'self-play' if self.world.opponent == 'self' else 'centralized'}"
+        return f"{self.algo_name} vs {self.world.opponent}"
 
 
 def read_partner(path: str | Path, map_location: str | torch.device = "cpu") -> Partner:
     """The learner saved in the run folder ``path`` (its ``policy.pt``; a folder from before ``policy.pt``
     described itself is read through its ``config.yaml``). Raises ``FileNotFoundError`` naming what is missing, and
     ``GroupFolderGiven`` naming the seeds' folders of a group folder."""
-    from sidewalk.envs.grid import DiscreteParams
-    from sidewalk.envs.rewards import RewardParams
-    from sidewalk.envs.unicycle import ContinuousParams
     from sidewalk.registry import LEARNERS
-    from sidewalk.run_folder import POLICY, one_run_folder, policy_file, read_torch_file
+    from sidewalk.run_folder import POLICY, one_run_folder, policy_file, read_torch_file, saved_world
 
     run_dir = Path(path)
     if not str(path):
@@ -128,59 +94,35 @@ def read_partner(path: str | Path, map_location: str | torch.device = "cpu") -> 
     state = read_torch_file(file, map_location=map_location, mmap=file.name != POLICY)
     if file.name != POLICY:  # a run from before policy.pt was written at checkpoints: its checkpoint's learner
         state = state["algorithm"]
-    described = state.get("description")
-    if described is None:  # written before policy.pt described its world: the folder's config.yaml does
-        described = saved_description(run_dir)
-    algo_cls = LEARNERS[described["algo_name"]]
-    algo_config = algo_cls.Config(**described["algo"])
-    params = dict(described["env_params"])
-    params["rewards"] = RewardParams(**params["rewards"])
-    params_cls = DiscreteParams if described["domain"] == "discrete" else ContinuousParams
-    return Partner(
-        path=run_dir,
-        algo_name=described["algo_name"],
-        algo_config=algo_config,
-        domain=described["domain"],
-        env_params=params_cls(**params),
-        opponent=described["opponent"],
-        ego=None if described["opponent"] in ("self", "centralized") else described["ego"],
-        state=state,
-    )
+    algo_name, algo, world = saved_world(state.get("description"), run_dir)
+    return Partner(path=run_dir, algo_name=algo_name, algo_config=LEARNERS[algo_name].Config(**algo), world=world,
+                   state=state)
 
 
-def _env_class(domain: str) -> type[SidewalkEnvBase]:
-    from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
-
-    return DiscreteSidewalkEnv if domain == "discrete" else ContinuousSidewalkEnv
-
-
-def check_partner(path: str | Path, domain: str, env_params: Any, ego: int | None, controlled=None) -> Partner:
-    """The partner in ``path``, checked to play the agents ``controlled`` (default: all but ``ego``) of a world of
-    ``domain`` with ``env_params``; raises ``FileNotFoundError`` or ``PartnerMismatch`` naming what is wrong."""
+def check_partner(path: str | Path, world: World, controlled=None) -> Partner:
+    """The partner in ``path``, checked to play the agents ``controlled`` (default: all but the world's ego) of
+    ``world``; raises ``FileNotFoundError`` or ``PartnerMismatch`` naming what is wrong."""
     partner = read_partner(path)
     shown = f"opponent.path={str(path)!r}"
-    if partner.domain != domain:
+    domain, env_params = world.domain, world.env_params
+    if partner.world.domain != domain:
         raise PartnerMismatch(
-            f"{shown} was trained in the {partner.domain} domain (env={partner.domain}); this run is env={domain}"
+            f"{shown} was trained in the {partner.world.domain} domain (env={partner.world.domain}); this run is "
+            f"env={domain}"
         )
-    differ = []
-    for f in dataclasses.fields(env_params):
-        if f.name in MAY_DIFFER:
-            continue
-        theirs, ours = getattr(partner.env_params, f.name), getattr(env_params, f.name)
-        if f.name == "observation" and theirs in _env_class(domain).PARTNER_OBSERVATIONS:
-            continue  # the env computes the partner's own observation for it (PolicyOpponent)
-        if theirs != ours:
-            differ.append(f"env.{f.name}={theirs!r} (this run: {ours!r})")
+    # The env computes a partner's own observation for it (PolicyOpponent): a partner trained on one may play here.
+    own_observation = getattr(partner.world.env_params, "observation", None) in world.core_class.PARTNER_OBSERVATIONS
+    ignoring = (*MAY_DIFFER, *(("observation",) if own_observation else ()))
+    differ = [f"{name}={partner.world.value(name)!r} (this run: {world.value(name)!r})"
+              for name in partner.world.differences(world, ignoring) if name.startswith("env.")]
     if differ:
         raise PartnerMismatch(
             f"{shown} was trained on another world: {', '.join(differ)}. A partner must share the domain, scenario "
-            f"and observation (or have one the env computes for it: {_env_class(domain).PARTNER_OBSERVATIONS}); only "
+            f"and observation (or have one the env computes for it: {world.core_class.PARTNER_OBSERVATIONS}); only "
             f"{', '.join(MAY_DIFFER)} may differ"
         )
-    n_agents = _env_class(domain).layout_for(env_params).n_agents
     if controlled is None:
-        controlled = [agent for agent in range(n_agents) if agent != ego]
+        controlled = [agent for agent in range(world.n_agents) if agent != world.ego]
     if not partner.plays_every_agent:
         for agent in controlled:
             if agent != partner.ego and role_map(domain, env_params, partner.ego, agent) is None:
@@ -195,9 +137,9 @@ def check_partner(path: str | Path, domain: str, env_params: Any, ego: int | Non
 def check_partner_of(experiment: Any) -> Partner | None:
     """For ``opponent=policy``, the partner of a validated experiment, checked (``check_partner``) before any compute:
     the runner calls it beside ``validate``, which opens no file. None for any other opponent."""
-    if experiment.opponent != "policy":
+    if experiment.world.opponent != "policy":
         return None
-    return check_partner(experiment.opponent_params["path"], experiment.domain, experiment.env_params, experiment.ego)
+    return check_partner(experiment.world.opponent_params["path"], experiment.world)
 
 
 def role_map(domain: str, env_params: Any, trained: int, plays: int) -> str | None:
@@ -206,7 +148,7 @@ def role_map(domain: str, env_params: Any, trained: int, plays: int) -> str | No
     and ``trained``'s start and goal onto ``plays``'s), or None (no map)."""
     if trained == plays:
         return "same"
-    layout = _env_class(domain).layout_for(env_params)
+    layout = core_class(domain).layout_for(env_params)
     layout = getattr(layout, "nominal", layout)  # jittered starts: their symmetry is the nominal layout's
     if not layout.fixed:
         return "same"
@@ -263,35 +205,33 @@ class PolicyOpponent(Opponent):
         super().__init__(env, controlled=controlled, ego=ego)
         if not isinstance(sample, bool):
             raise TypeError(f"sample={sample!r} must be a bool")
-        self.partner = check_partner(path, env_domain(env), env.params, ego, self.controlled)
+        here = World(env_domain(env), env.params, self.name, ego=0 if ego is None else ego)
+        self.partner = check_partner(path, here, self.controlled)
         self.sample = sample
         self.in_keys = [OBSERVATION_KEY]
         self._policy, self._decode = self._rebuild(self.partner, env, sample)
-        self._maps = [role_map(self.partner.domain, env.params, self.partner.ego, agent) if self.partner.ego is not None
+        self._maps = [role_map(self.partner.world.domain, env.params, self.partner.ego, agent) if self.partner.ego is not None
                       else "same" for agent in self.controlled]
         # A partner trained on another observation kind (a grid vector in an image world) sees its own, from the env.
-        own = getattr(self.partner.env_params, "observation", None)
+        own = getattr(self.partner.world.env_params, "observation", None)
         self._own_observation = own if own != getattr(env.params, "observation", None) else None
         if self._own_observation is not None:
             self.in_keys = list(type(env).PARTNER_OBSERVATION_KEYS)
 
     @staticmethod
     def _rebuild(partner: Partner, env: SidewalkEnvBase, sample: bool):
-        """The partner's policy module, built on a one-world view of the world it trained on (so every spec is
-        the one training saw), and the joint-action decoder of a centralized partner."""
+        """The partner's policy module, built on one world of its own (so every spec is the one training saw), and
+        the joint-action decoder of a centralized partner: a saved policy replayed is its World plus its learner."""
         from torchrl.envs import RewardSum, TransformedEnv
 
         from sidewalk.registry import LEARNERS
-        from sidewalk.views import view_for_opponent
 
-        core = _env_class(partner.domain)(1, device=env.device, seed=0, params=partner.env_params)
-        # The networks need only the view's specs: a random opponent stands in for whom an ego learner trained against.
-        view = view_for_opponent(core, partner.opponent if partner.plays_every_agent else "random", partner.ego or 0)
+        view = partner.world.stand_in().make(1, seed=0, device=env.device)
         algo = LEARNERS[partner.algo_name](partner.algo_config, TransformedEnv(view, RewardSum()), device=env.device)
         algo.load_policy_state_dict(partner.state)
         policy = algo.collection_policy() if sample else algo.evaluation_policy()
-        decode = view.decode_action if partner.opponent == "centralized" and partner.domain == "discrete" else None
-        return policy, decode
+        centralized_grid = partner.world.opponent == "centralized" and partner.world.domain == "discrete"
+        return policy, view.decode_action if centralized_grid else None
 
     @torch.no_grad()
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -301,10 +241,10 @@ class PolicyOpponent(Opponent):
             observation = self.env.observe_as(self._own_observation, tensordict)
         batch = observation.shape[0]
         partner = self.partner
-        if partner.opponent == "self":
+        if partner.world.opponent == "self":
             out = self._policy(TensorDict({OBSERVATION_KEY: observation}, batch_size=[batch]))
             action = out.get(ACTION_KEY).index_select(1, self._controlled_index)
-        elif partner.opponent == "centralized":
+        elif partner.world.opponent == "centralized":
             joint = self._policy(TensorDict({"observation": observation.select(1, 0)}, batch_size=[batch])).get("action")
             per_agent = self._decode(joint) if self._decode is not None else joint.unflatten(-1, (self.env.n_agents, -1))
             action = per_agent.index_select(1, self._controlled_index)

@@ -9,7 +9,7 @@ machine). The weights are cached beside the dataset (``proxy/<key>.pt``, weights
 and the training settings, so training and cross-play reuse them.
 
 It plays agent ``j`` from ``j``'s observation as the recorded agent ``e`` would: as is where the two roles are drawn
-alike, turned by half a turn where that symmetry maps ``e``'s role onto ``j``'s (``sidewalk.opponents.policy``'s
+alike, turned by half a turn where that symmetry maps ``e``'s role onto ``j``'s (``sidewalk.partners.policy``'s
 ``role_map`` and ``play_roles``, as a learned partner does). A dataset of another domain, observation or scenario (any
 env setting but noise, rewards, the time limit and the jitters) is refused, naming what differs.
 """
@@ -32,7 +32,7 @@ from torch import nn
 from sidewalk.datasets import load, pins_of
 from sidewalk.envs.base import SidewalkEnvBase
 from sidewalk.opponents.base import Opponent, env_domain
-from sidewalk.opponents.policy import MAY_DIFFER, OBSERVATION_KEY, play_roles, role_map, write_actions
+from sidewalk.partners.policy import MAY_DIFFER, OBSERVATION_KEY, play_roles, role_map, write_actions
 
 WEIGHTS_FOLDER = "proxy"
 GRID_MOVES = 4

@@ -25,7 +25,7 @@ from sidewalk._checks import check_choice
 from sidewalk.envs.base import SidewalkEnvBase
 from sidewalk.opponents.base import ACTION_KEY, Opponent, env_domain, make_opponent
 
-PARTNERS_DIR = Path(__file__).resolve().parent.parent / "partners"  # the shipped learned partners
+PARTNERS_DIR = Path(__file__).resolve().parent  # the shipped learned partners: this package's domain folders
 SPLITS = ("training", "heldout")
 
 
