@@ -139,3 +139,27 @@ def adapt_benchmarl() -> None:
         _require(module, ("QValueModule",), "build BenchMARL's Q-value modules without TorchRL 0.14's shape check")
         if module.QValueModule is QValueModule:
             module.QValueModule = functools.partial(QValueModule, strict_shape=False)
+
+
+def checkpoint_safe_globals() -> list[Any]:
+    """What a checkpoint holds beyond tensors and plain data: TensorDicts (the replay buffer, the worlds
+    mid-episode, the collector's carrier) and NumPy's RNG state (an array). Their reconstructors only build
+    those types from tensors and plain data; every other global in a file is refused (``run_folder.read_torch_file``).
+    Two of them are private: tensordict's ``_make_td`` and NumPy's ``_reconstruct``, the names the pickles hold."""
+    import numpy as np
+    import tensordict
+    from tensordict._reductions import _make_td
+
+    try:
+        from numpy._core.multiarray import _reconstruct
+    except ImportError:  # NumPy 1
+        from numpy.core.multiarray import _reconstruct
+    return [
+        (_reconstruct, "numpy.core.multiarray._reconstruct"),  # the name NumPy 1 wrote
+        (_reconstruct, "numpy._core.multiarray._reconstruct"),
+        np.ndarray,
+        np.dtype,
+        type(np.dtype(np.uint32)),
+        _make_td,
+        tensordict.TensorDict,
+    ]

@@ -100,7 +100,9 @@ def probe_job_in(tree: Path, job_overrides: Sequence[str], work_dir: Path, repli
                           text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"the probe failed in {tree}: {' '.join(command)}\n{done.stderr[-3000:]}")
-    metrics = pd.read_csv(work_dir / (f"seed{replicas - 1}" if replicas > 1 else ".") / "metrics.csv")
+    from sidewalk.run_folder import METRICS, group_seed_dirs
+
+    metrics = pd.read_csv(group_seed_dirs(work_dir, 0, replicas)[-1] / METRICS)  # the last seed's, seed 0 first
     return metrics.drop(columns=[column for column in WALL_CLOCK if column in metrics.columns])
 
 

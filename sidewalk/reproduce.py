@@ -43,7 +43,7 @@ from typing import Any
 from sidewalk._hydra import basic_sweeper_points
 from sidewalk.compose import compose
 from sidewalk.paths import CONFIG_DIR, RUNNERS_DIR
-from sidewalk.run_folder import CHECKPOINT, GROUP_DIR, PREVIOUS_CHECKPOINT, SUMMARY
+from sidewalk.run_folder import CHECKPOINT, PREVIOUS_CHECKPOINT, SUMMARY, group_seed_dirs, group_state_dir
 
 PRESETS = ("fig5_discrete", "fig5_continuous", "fig6_discrete", "fig6_continuous", "fig8")
 SCALES = ("full", "quick")
@@ -122,11 +122,10 @@ def job_state(folder: Path, job: Job) -> str:
     ``stale`` (started, killed before its first checkpoint)."""
     if not folder.exists():
         return "new"
-    state_dir = folder / GROUP_DIR if job.replicas > 1 else folder
+    state_dir = group_state_dir(folder, job.replicas)
     if any((state_dir / name).exists() for name in (CHECKPOINT, PREVIOUS_CHECKPOINT)):
         return "resume"
-    replica_dirs = [folder / f"seed{job.seed + r}" for r in range(job.replicas)] if job.replicas > 1 else [folder]
-    if all((replica / SUMMARY).exists() for replica in replica_dirs):
+    if all((replica / SUMMARY).exists() for replica in group_seed_dirs(folder, job.seed, job.replicas)):
         return "done"
     return "stale"
 

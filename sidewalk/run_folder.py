@@ -64,6 +64,20 @@ def replica_dir(run_dir: str | Path, seed: int) -> Path:
     return Path(run_dir) / f"seed{seed}"
 
 
+def group_state_dir(run_dir: str | Path, replicas: int) -> Path:
+    """Where a run of ``replicas`` seeds keeps its config, history and checkpoint: ``run_dir`` for one seed, its
+    ``.group/`` for several."""
+    return Path(run_dir) if replicas == 1 else Path(run_dir) / GROUP_DIR
+
+
+def group_seed_dirs(run_dir: str | Path, seed: int, replicas: int) -> list[Path]:
+    """Each seed's run folder in a run of seeds ``seed .. seed+replicas-1``: ``run_dir`` itself for one seed,
+    ``run_dir/seed<S>/`` each for several."""
+    if replicas == 1:
+        return [Path(run_dir)]
+    return [replica_dir(run_dir, seed + replica) for replica in range(replicas)]
+
+
 def is_group_folder(path: str | Path) -> bool:
     """Whether ``path`` is a group folder: the folder of a run of several seeds, holding ``.group/``."""
     return (Path(path) / GROUP_DIR).is_dir()
@@ -198,46 +212,25 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
 # ---- reading files back -----------------------------------------------------------------------------------------
 
 
-def _safe_globals() -> list[Any]:
-    """What a checkpoint holds beyond tensors and plain data: TensorDicts (the replay buffer, the worlds
-    mid-episode, the collector's carrier) and NumPy's RNG state (an array). Their reconstructors only build
-    those types from tensors and plain data; every other global in a file is refused."""
-    import numpy as np
-    import tensordict
-    from tensordict._reductions import _make_td
-
-    try:
-        from numpy._core.multiarray import _reconstruct
-    except ImportError:  # NumPy 1
-        from numpy.core.multiarray import _reconstruct
-    return [
-        (_reconstruct, "numpy.core.multiarray._reconstruct"),  # the name NumPy 1 wrote
-        (_reconstruct, "numpy._core.multiarray._reconstruct"),
-        np.ndarray,
-        np.dtype,
-        type(np.dtype(np.uint32)),
-        _make_td,
-        tensordict.TensorDict,
-    ]
-
-
 def read_torch_file(path: str | Path, map_location: Any = "cpu", mmap: bool = False) -> Any:
     """The one way the package reads a ``.pt`` file back (``policy.pt``, ``checkpoint.pt``, ``checkpoint.prev.pt``):
-    ``torch.load(weights_only=True)`` with only the safe types of ``_safe_globals`` allowed.
+    ``torch.load(weights_only=True)`` with only the safe types of ``sidewalk._torchrl.checkpoint_safe_globals`` allowed.
 
     Raises ``UnsafeFile`` naming the file and the types it holds when it holds anything else (nothing in it is
     built or run), and ``UnreadableFile`` when it is torn, corrupt or not a torch file.
     """
     import torch
 
+    from sidewalk._torchrl import checkpoint_safe_globals  # torchrl's import only where a file is read
+
     path = Path(path)
     try:
-        with torch.serialization.safe_globals(_safe_globals()):
+        with torch.serialization.safe_globals(checkpoint_safe_globals()):
             return torch.load(path, map_location=map_location, weights_only=True, mmap=mmap)
     except pickle.UnpicklingError as error:
         try:
             allowed = {item[1] if isinstance(item, tuple) else f"{item.__module__}.{item.__qualname__}"
-                       for item in _safe_globals()}
+                       for item in checkpoint_safe_globals()}
             held = [name for name in torch.serialization.get_unsafe_globals_in_checkpoint(path) if name not in allowed]
         except Exception:  # noqa: BLE001 (a file too broken to list is refused all the same)
             held = []

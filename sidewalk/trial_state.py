@@ -31,10 +31,11 @@ from sidewalk.run_folder import (
     atomic_write,
     check,
     check_checkpoint,
+    group_seed_dirs,
+    group_state_dir,
     has_checkpoint,
     load_checkpoint,
     record_start,
-    replica_dir,
     save_checkpoint,
 )
 from sidewalk.snapshot import capture_env, capture_rng, restore_env, restore_rng
@@ -48,15 +49,13 @@ def replica_config(config: dict[str, Any], seed: int) -> dict[str, Any]:
 
 
 def state_dir(run_dir: Path, experiment: Experiment) -> Path:
-    """Where the trial keeps its config, history and checkpoint: ``run_dir``, or its ``.group/`` for several seeds."""
-    return Path(run_dir) if experiment.replicas == 1 else Path(run_dir) / GROUP_DIR
+    """Where the trial keeps its config, history and checkpoint (``run_folder.group_state_dir``)."""
+    return group_state_dir(run_dir, experiment.replicas)
 
 
 def seed_dirs(run_dir: Path, experiment: Experiment) -> list[Path]:
-    """Each seed's run folder: ``run_dir`` itself for one seed, ``run_dir/seed<S>/`` each for several."""
-    if experiment.replicas == 1:
-        return [Path(run_dir)]
-    return [replica_dir(run_dir, experiment.seed + replica) for replica in range(experiment.replicas)]
+    """Each seed's run folder (``run_folder.group_seed_dirs``)."""
+    return group_seed_dirs(run_dir, experiment.seed, experiment.replicas)
 
 
 def check_folders(run_dir: Path, experiment: Experiment, config: dict[str, Any], in_sweep: bool = False) -> str:

@@ -1,5 +1,6 @@
-"""The package stays readable: short functions, modules that hold one thing, and TorchRL's internals reached only
-through sidewalk/_torchrl.py (so a TorchRL release that changes them fails in one place, loudly)."""
+"""The package stays readable: short functions, modules that hold one thing, and other libraries' internals reached
+only through the ``_``-named adapters (``_torchrl.py``, ``_hydra.py``, ``_omegaconf.py``, ``_minari.py``), so a
+release that changes them fails in one place, loudly (tests/test_adapters.py, tests/test_torchrl_adapter.py)."""
 
 from __future__ import annotations
 
@@ -13,10 +14,10 @@ SOURCES = sorted(PACKAGE.rglob("*.py"))
 MAX_FUNCTION_LINES = 80
 MAX_MODULE_LINES = {"experiment.py": 400, **{f"views/{p.name}": 400 for p in (PACKAGE / "views").glob("*.py")}}
 ADAPTER = PACKAGE / "_torchrl.py"
-# Private names of other libraries that are theirs to offer to subclasses or resolvers, not TorchRL internals:
-# Stable-Baselines3's VecEnv._get_indices (for VecEnv subclasses), OmegaConf's node API given to resolvers, and
-# NamedTuple's public _replace.
-NOT_TORCHRL = {"_get_indices", "_get_node", "_is_interpolation", "_key", "_replace"}
+ADAPTERS = [path for path in sorted(PACKAGE.glob("_*.py")) if path.name not in ("__init__.py", "_checks.py")]
+# Private names of other libraries that are theirs to offer to subclasses: Stable-Baselines3's VecEnv._get_indices
+# (for VecEnv subclasses) and NamedTuple's public _replace.
+OFFERED = {"_get_indices", "_replace"}
 
 
 def parsed(path: Path) -> ast.Module:
@@ -42,7 +43,7 @@ def own_names() -> set[str]:
     """Every name sidewalk defines or imports: a private attribute with one of these names is our own."""
     names: set[str] = set()
     for path in SOURCES:
-        if path == ADAPTER:
+        if path in ADAPTERS:
             continue
         for node in ast.walk(parsed(path)):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
@@ -58,16 +59,38 @@ def own_names() -> set[str]:
     return names
 
 
-def test_private_attributes_of_other_libraries_are_reached_only_through_the_adapter():
-    ours = own_names() | NOT_TORCHRL
+def test_private_attributes_of_other_libraries_are_reached_only_through_the_adapters():
+    ours = own_names() | OFFERED
     reached = sorted(
         f"{path.relative_to(PACKAGE)}:{node.lineno} .{node.attr}"
-        for path in SOURCES if path != ADAPTER
+        for path in SOURCES if path not in ADAPTERS
         for node in ast.walk(parsed(path))
         if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__")
         and node.attr not in ours
     )
-    assert not reached, "use sidewalk/_torchrl.py: " + "; ".join(reached)
+    assert not reached, "go through an adapter (sidewalk/_torchrl.py, _hydra.py, ...): " + "; ".join(reached)
+
+
+def test_private_modules_of_other_libraries_are_imported_only_by_the_adapters():
+    """``hydra._internal``, ``minari.data_collector.episode_buffer``'s privates and kin: imported in an adapter."""
+    imported = sorted(
+        f"{path.relative_to(PACKAGE)}:{node.lineno} {module}"
+        for path in SOURCES if path not in ADAPTERS
+        for node in ast.walk(parsed(path))
+        for module in ([node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level
+                       else [alias.name for alias in node.names] if isinstance(node, ast.Import) else [])
+        if not module.startswith("sidewalk") and module != "__future__"
+        and any(part.startswith("_") for part in module.split("."))
+    )
+    assert not imported, "go through an adapter: " + "; ".join(imported)
+
+
+def test_the_adapters_are_the_bottom_layer():
+    """An adapter imports its library and the standard library, nothing of sidewalk's but ``_checks``."""
+    for path in ADAPTERS:
+        for node in ast.walk(parsed(path)):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("sidewalk"):
+                assert node.module == "sidewalk._checks", f"{path.name} imports {node.module}"
 
 
 def test_the_adapter_names_every_private_attribute_it_touches():

@@ -198,3 +198,21 @@ def test_each_face_states_its_default_worlds_and_the_runner_s(domain, keys):
         assert "the scenario's own starts and goals" in face
         assert stated in " ".join(face.split()).replace("``", "").replace("`", "")
     assert World(domain, core_class(domain).Params()).env_params.__getattribute__(keys[0]) == 0
+
+
+def test_the_outcome_flags_and_their_words_are_listed_once():
+    """``envs.base.OUTCOME_WORDS`` (and ``INFO_KEYS``, its keys) is the one list: no other literal of the package
+    names two or more of the flags (a second list would drift from it; one flag read by name is a fact of its own)."""
+    from sidewalk.envs import INFO_KEYS
+
+    lists = []
+    for path in PACKAGE.rglob("*.py"):
+        if path.relative_to(PACKAGE).as_posix() == "envs/base.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            items = node.elts if isinstance(node, (ast.Tuple, ast.List, ast.Set)) else (
+                node.keys if isinstance(node, ast.Dict) else [])
+            named = {item.value for item in items if isinstance(item, ast.Constant) and item.value in INFO_KEYS}
+            if len(named) >= 2:
+                lists.append(f"{path.relative_to(PACKAGE)}:{node.lineno}")
+    assert not lists, lists

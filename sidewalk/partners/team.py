@@ -9,7 +9,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from sidewalk._checks import check_int
-from sidewalk.envs.base import SidewalkEnvBase
+from sidewalk.envs.base import INFO_KEYS, SidewalkEnvBase
 from sidewalk.opponents.base import Opponent, make_opponent
 from sidewalk.views import WORLD, EgoView
 
@@ -38,7 +38,7 @@ class ScriptedTeam(TensorDictModuleBase):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         world = tensordict.get(WORLD)
         info = world.get("info")
-        done = info.get("reached_goal") | info.get("collided_agent") | info.get("collided_wall") | info.get("timed_out")
+        done = torch.stack([info.get(key) for key in INFO_KEYS]).any(0)  # any outcome ends an agent's walk
         self._planned = self.planner.act(world.get("state"), world.get("goal"), done, world.get("present"))
         tensordict.set("action", self._planned.select(1, 0))
         return tensordict
