@@ -105,12 +105,12 @@ def test_the_shipped_partners_are_small_weights_only_files_in_the_wheel(domain, 
     ]
     assert sorted(learned) == sorted(names)
     patterns = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"][
-        "sidewalk"
+        "sidewalk.partners"
     ]
     for name in learned:
         file = PARTNERS_DIR / domain / name / "policy.pt"
         assert file.stat().st_size < 100_000
         read_torch_file(file)  # weights only: raises on anything else
         assert read_partner(file.parent).world.opponent == "self"
-        relative = str(file.relative_to(ROOT / "sidewalk"))
+        relative = str(file.relative_to(PARTNERS_DIR))
         assert any(fnmatch.fnmatch(relative, pattern) for pattern in patterns), relative
