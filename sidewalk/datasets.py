@@ -33,10 +33,11 @@ import gymnasium
 import numpy as np
 
 from sidewalk._minari import jax_free_collector_class
-from sidewalk.envs import CORE_ENVS, INFO_KEYS
+from sidewalk.envs import INFO_KEYS
 from sidewalk.interop.gymnasium import CENTRALIZED, ENV_IDS, SidewalkGymEnv
 from sidewalk.opponents.base import opponent_config
 from sidewalk.version import __version__
+from sidewalk.world import World
 
 if TYPE_CHECKING:
     import minari
@@ -141,36 +142,36 @@ def _jsonable(value: Any) -> Any:
     return repr(value)
 
 
-def _domain(face: SidewalkGymEnv) -> str:
-    return next(domain for domain, cls in CORE_ENVS.items() if type(face.view.core) is cls)
+def _world_config(world: World) -> dict[str, Any]:
+    """A World as a dataset pins it (JSON types): domain, opponent and every one of its settings (defaults
+    included), the recorded agent and its episode's end (None for the centralized view), shield, every core env
+    parameter."""
+    centralized = world.opponent == CENTRALIZED
+    return _jsonable({
+        "domain": world.domain,
+        "opponent": world.opponent,
+        "opponent_kwargs": opponent_config(world.opponent, world.opponent_params),
+        "ego": None if centralized else world.ego,
+        "end_on_ego_done": None if centralized else world.end_on_ego_done,
+        "shield": world.shield,
+        **dataclasses.asdict(world.env_params),
+    })
 
 
 def pinned_config(env: gymnasium.Env, env_config: Mapping[str, Any]) -> dict[str, Any]:
     """The full config of the sidewalk env ``env`` made with the keywords ``env_config`` (those of
-    ``gymnasium.make``): domain, opponent and its settings, ego, and every core env keyword, as JSON types. Raises
-    ``ValueError`` naming each keyword of ``env_config`` that the env does not take or that disagrees with it."""
-    face = _face(env)
-    view, domain = face.view, _domain(face)
+    ``gymnasium.make``), written from its World (``_world_config``). Raises ``ValueError`` naming each keyword of
+    ``env_config`` that the env does not take or that disagrees with it."""
+    world = _face(env).world
     config = dict(env_config)
-    if config.pop("domain", domain) != domain:
-        raise ValueError(f"env_config domain={env_config['domain']!r}, but the env is of the {domain!r} domain")
-    opponent_object = getattr(view, "opponent", None)
-    opponent = CENTRALIZED if opponent_object is None else type(opponent_object).name
-    full: dict[str, Any] = {
-        "domain": domain,
-        "opponent": opponent,
-        "opponent_kwargs": opponent_config(opponent, config.get("opponent_kwargs") or {}),
-        "ego": getattr(view, "ego", None),
-        "end_on_ego_done": getattr(view, "end_on_ego_done", None),
-        "shield": bool(view.shield),
-        **view.core.params_dict(),
-    }
-    full = _jsonable(full)
+    if config.pop("domain", world.domain) != world.domain:
+        raise ValueError(f"env_config domain={env_config['domain']!r}, but the env is of the {world.domain!r} domain")
+    full = _world_config(world)
     unknown = sorted(set(config) - set(full))
     if unknown:
         raise ValueError(f"env_config keyword(s) {unknown} are none of the env's: {sorted(full)}")
     given = _jsonable(config)
-    given["opponent_kwargs"] = opponent_config(opponent, given.get("opponent_kwargs") or {})
+    given["opponent_kwargs"] = opponent_config(world.opponent, given.get("opponent_kwargs") or {})
     differ = [f"{key}={given[key]!r} (the env has {full[key]!r})" for key in given
               if key != "rewards" and given[key] is not None and given[key] != full[key]]
     differ += [f"rewards.{key}={value!r} (the env has {full['rewards'].get(key)!r})"
@@ -182,18 +183,17 @@ def pinned_config(env: gymnasium.Env, env_config: Mapping[str, Any]) -> dict[str
 
 def _make_kwargs(env: gymnasium.Env, env_config: Mapping[str, Any]) -> dict[str, Any]:
     """The keywords that make ``env`` again: those of ``gymnasium.make`` (its spec's) and ``env_config``, with the
-    view's own settings (opponent, ego, ...) read from the env; the core's and the opponent's defaults left out, so
+    view's own settings (opponent, ego, ...) from its World; the core's and the opponent's defaults left out, so
     that a later package's changed defaults show on ``load``."""
     spec_kwargs = dict(env.spec.kwargs) if env.spec is not None else {}
     kwargs = {**spec_kwargs, **env_config}
     kwargs.pop("domain", None)
     kwargs.pop("render_mode", None)  # how it is shown, not the world: gymnasium.make keeps it in the spec
-    view = _face(env).view
-    opponent_object = getattr(view, "opponent", None)
-    kwargs["opponent"] = CENTRALIZED if opponent_object is None else type(opponent_object).name
-    if opponent_object is not None:
-        kwargs["ego"], kwargs["end_on_ego_done"] = view.ego, view.end_on_ego_done
-    kwargs["shield"] = bool(view.shield)
+    world = _face(env).world
+    kwargs["opponent"] = world.opponent
+    if world.opponent != CENTRALIZED:
+        kwargs["ego"], kwargs["end_on_ego_done"] = world.ego, world.end_on_ego_done
+    kwargs["shield"] = world.shield
     return _jsonable(kwargs)
 
 
@@ -276,7 +276,7 @@ def check_can_append(
     import minari
 
     check_dataset_id(dataset_id)
-    env_id = env.spec.id if env.spec is not None else _env_id(_domain(_face(env)))
+    env_id = env.spec.id if env.spec is not None else _env_id(_face(env).world.domain)
     pins = {
         "env_id": env_id,
         "env_version": env_version(env_id),

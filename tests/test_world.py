@@ -216,3 +216,18 @@ def test_the_outcome_flags_and_their_words_are_listed_once():
             if len(named) >= 2:
                 lists.append(f"{path.relative_to(PACKAGE)}:{node.lineno}")
     assert not lists, lists
+
+
+def test_the_gymnasium_face_builds_the_world_its_keywords_describe():
+    """World → gymnasium.make keywords (``world_kwargs``) → the face's World: the same value, which a dataset's pins
+    are written from."""
+    import gymnasium
+
+    from sidewalk.interop.gymnasium import ENV_IDS, world_kwargs
+
+    world = World("discrete", DiscreteParams(noise=0.1, start_jitter_rows=1, goal_jitter_rows=1), "dijkstra",
+                  {"tie_break": "progress"}, ego=1, end_on_ego_done=True)
+    face = gymnasium.make(ENV_IDS["discrete"], **world_kwargs(world)).unwrapped
+    assert face.world == world
+    with pytest.raises(ValueError, match="the Gymnasium face shows one learner's view"):
+        world_kwargs(world.replace(opponent="self"))

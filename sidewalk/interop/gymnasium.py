@@ -85,22 +85,23 @@ def build_view(
     device: str | torch.device = "cpu",
     shield: bool = False,
     **env_kwargs: Any,
-) -> EgoView | CentralizedView:
-    """The TorchRL view behind the gymnasium face: an ``EgoView`` against ``opponent``, or a ``CentralizedView``
-    for ``opponent="centralized"`` (which takes no ``ego``, ``end_on_ego_done`` or ``opponent_kwargs``).
-    ``shield=True`` puts the safety shield in front of the learner's actions (``sidewalk.views``)."""
+) -> tuple[World, EgoView | CentralizedView]:
+    """The World behind the gymnasium face and its TorchRL view of ``num_envs`` worlds: an ``EgoView`` against
+    ``opponent``, or a ``CentralizedView`` for ``opponent="centralized"`` (which takes no ``ego``,
+    ``end_on_ego_done`` or ``opponent_kwargs``). ``shield=True`` puts the safety shield in front of the learner's
+    actions (``sidewalk.views``)."""
     check_choice("domain", domain, CORE_ENVS)
     check_choice("opponent", opponent, [*OPPONENTS, CENTRALIZED])
-    core = CORE_ENVS[domain](num_envs=num_envs, device=device, **env_kwargs)
     if opponent == CENTRALIZED:
         given = {"ego": ego, "end_on_ego_done": end_on_ego_done, "opponent_kwargs": opponent_kwargs}
         extra = [name for name, value in given.items() if value is not None]
         if extra:
             raise ValueError(f"opponent='centralized' has no ego agent; drop {', '.join(extra)}")
-    return view_for_opponent(
-        core, opponent, 0 if ego is None else ego, shield=shield, end_on_ego_done=bool(end_on_ego_done),
-        opponent_kwargs=opponent_kwargs,
-    )
+    core = CORE_ENVS[domain](num_envs=num_envs, device=device, **env_kwargs)  # its room where the keywords give none
+    world = World(domain, core.params, opponent, dict(opponent_kwargs or {}), 0 if ego is None else ego,
+                  end_on_ego_done=bool(end_on_ego_done), shield=shield)
+    return world, view_for_opponent(core, opponent, world.ego, shield=shield, end_on_ego_done=world.end_on_ego_done,
+                                    opponent_kwargs=opponent_kwargs)
 
 
 def world_kwargs(world: World) -> dict[str, Any]:
@@ -272,7 +273,7 @@ class SidewalkGymEnv(gymnasium.Env):
     is ``"centralized"``; ``ego``, ``end_on_ego_done`` and ``opponent_kwargs`` go to ``EgoView``; every other
     keyword goes to the core env. ``reset(seed=...)`` seeds the world's generator (core, opponent and noise).
     ``step`` refuses an action outside ``action_space`` with ``InvalidActionError`` (``checked_action``).
-    The TorchRL view behind it is ``self.view``.
+    The TorchRL view behind it is ``self.view``, the worlds it shows ``self.world`` (``sidewalk.world.World``).
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": list(WINDOW_RENDER_MODES), "render_fps": RENDER_FPS}
@@ -293,7 +294,7 @@ class SidewalkGymEnv(gymnasium.Env):
             check_choice("render_mode", render_mode, WINDOW_RENDER_MODES)
         self.render_mode = render_mode
         self._window = FrameWindow(ENV_IDS.get(domain, "sidewalk"), RENDER_FPS) if render_mode == "human" else None
-        self.view = build_view(
+        self.world, self.view = build_view(
             domain, 1, opponent, ego, end_on_ego_done, opponent_kwargs, device=device, **env_kwargs
         )
         self.observation_space, self.action_space = view_spaces(self.view)
@@ -395,7 +396,7 @@ class SidewalkVectorEnv(VectorEnv):
         if render_mode is not None:
             check_choice("render_mode", render_mode, RENDER_MODES)
         self.render_mode = render_mode
-        self.view = build_view(
+        self.world, self.view = build_view(
             domain, num_envs, opponent, ego, end_on_ego_done, opponent_kwargs, device=device, **env_kwargs
         )
         self.num_envs = num_envs
