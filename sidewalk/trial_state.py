@@ -129,38 +129,38 @@ class Parts:
 
 def save_trial(parts: Parts, state_dir: Path) -> None:
     """One checkpoint for every seed (they share one env and one collector): learners, replay buffers, the worlds
-    mid-episode, the collector, the random state, and each seed's metrics and best evaluation."""
+    mid-episode, the collector, the random state, and each seed's metrics and best evaluation. One layout whatever
+    the number of seeds (a lone seed is a list of one)."""
     first = parts.runs[0].state
-    buffers = [buffer.state_dict() if buffer is not None else None for buffer in parts.replay_buffers]
     saved = {
         "iteration": first.iteration,
         "elapsed_s": first.elapsed(),
         "algorithm": parts.learners.state_dict(),
-        "replay_buffer": buffers[0] if len(buffers) == 1 else buffers,
+        "replay_buffer": [buffer.state_dict() if buffer is not None else None for buffer in parts.replay_buffers],
         "env": capture_env(parts.train_env.base_env),
         **collector_state(parts.collector),
         "rng": capture_rng(),
+        "runs": [{"rows": run.state.rows, "best": run.state.best_state()} for run in parts.runs],
+        "seeds": [run.experiment.seed for run in parts.runs],
     }
-    seeds = [{"rows": run.state.rows, "best": run.state.best_state()} for run in parts.runs]
-    if len(parts.runs) == 1:
-        saved.update(seeds[0])  # a lone run's checkpoint, as it has always been laid out
-    else:
-        saved.update(runs=seeds, seeds=[run.experiment.seed for run in parts.runs])
     save_checkpoint(state_dir, saved)
 
 
 def restore_trial(parts: Parts, state_dir: Path, device: Any) -> float:
-    """Put back every state ``save_trial`` wrote; returns the training time it had taken."""
+    """Put back every state ``save_trial`` wrote; returns the training time it had taken. A checkpoint written
+    before the one layout is read too: a lone seed's rows, best evaluation and replay buffer at its top level, and
+    one buffer of a group not in a list."""
     saved = load_checkpoint(state_dir, map_location=device)
     parts.learners.load_state_dict(saved["algorithm"])
-    held_buffers = saved["replay_buffer"] if len(parts.replay_buffers) > 1 else [saved["replay_buffer"]]
-    for buffer, held in zip(parts.replay_buffers, held_buffers):
+    held_buffers = saved["replay_buffer"]
+    held_buffers = held_buffers if isinstance(held_buffers, list) else [held_buffers]
+    for buffer, held in zip(parts.replay_buffers, held_buffers, strict=True):
         if buffer is not None:
             buffer.load_state_dict(held)
     restore_env(parts.train_env.base_env, saved["env"])
     restore_collector_state(parts.collector, saved)
     restore_rng(saved["rng"])
-    for run, held in zip(parts.runs, saved.get("runs", [saved])):
+    for run, held in zip(parts.runs, saved.get("runs", [saved]), strict=True):
         run.state.rows, run.state.iteration = held["rows"], saved["iteration"]
         run.state.load_best_state(held.get("best"))
     return saved["elapsed_s"]

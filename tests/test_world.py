@@ -167,7 +167,7 @@ def test_a_run_folder_written_before_the_world_replays_as_a_partner():
 def test_a_report_reads_a_run_folder_written_before_the_world():
     from sidewalk.report.runs import find_run_folders, load_run
 
-    (folder,) = find_run_folders([BEFORE_WORLD])
+    (folder,) = find_run_folders([BEFORE_WORLD / "dqn_run"])
     run = load_run(folder)
     assert run.summary["seed"] == 0 and len(run.metrics) == 2
 
@@ -231,3 +231,24 @@ def test_the_gymnasium_face_builds_the_world_its_keywords_describe():
     assert face.world == world
     with pytest.raises(ValueError, match="the Gymnasium face shows one learner's view"):
         world_kwargs(world.replace(opponent="self"))
+
+
+def test_a_checkpoint_written_before_the_one_layout_resumes(tmp_path):
+    """A lone seed's checkpoint from da5af71 (its rows, best evaluation and replay buffer at the top level) resumes
+    under today's one layout, and the run goes on to a longer budget."""
+    import shutil
+
+    from omegaconf import OmegaConf
+
+    from sidewalk.config import validate
+    from sidewalk.experiment import Trial
+    from sidewalk.run_folder import CHECKPOINT, read_torch_file
+
+    run = shutil.copytree(BEFORE_WORLD / "dqn_checkpoint", tmp_path / "run")
+    old = read_torch_file(run / CHECKPOINT)
+    assert "runs" not in old and isinstance(old["replay_buffer"], dict)  # the older lone layout
+    cfg = OmegaConf.merge(OmegaConf.load(run / "config.yaml"), {"iterations": 3, "resume": True})
+    (summary,) = Trial(validate(cfg), run, OmegaConf.to_container(cfg, resolve=True)).run(progress=False,
+                                                                                        absolute_metric=False)
+    assert summary["iterations"] == 3
+    assert len((run / "metrics.csv").read_text().splitlines()) == 1 + 3  # a header and three iterations
