@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import shutil
 import sys
@@ -379,6 +380,9 @@ def _compare_trees(first: Path, second: Path, root: Path, folders: Sequence[str]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    # The probes' learners log TorchRL's INFO lines (a replay buffer's size) between the verdicts; the runner's Hydra
+    # logging config keeps them at WARNING, as here.
+    logging.getLogger("torchrl").setLevel(logging.WARNING)
     parser = argparse.ArgumentParser(prog="python -m sidewalk.reference", description=__doc__.splitlines()[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
                                      epilog="\n".join(__doc__.splitlines()[2:]))
