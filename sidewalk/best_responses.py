@@ -2,7 +2,7 @@
 
 For each held-out member of a domain (``sidewalk.partners.population``) our learner that the domain's reference
 trains against a scripted partner (``RECIPES``: PPO in the continuous world, DQN in the grid) is trained against that
-member alone, then evaluated with it under the cross-play protocol (``sidewalk.crossplay.evaluate_cell``: greedy, one
+member alone, then evaluated with it under the cross-play protocol (``sidewalk.crossplay.arena.evaluate_cell``: greedy, one
 episode in each of ``episodes`` worlds seeded ``seed + EVAL_SEED_OFFSET``, the matrix's own worlds). Its team success
 is cached in ``best_responses.csv`` (``BEST_RESPONSE_COLUMNS``) beside the matrix, which
 ``sidewalk.report.crossplay.adhoc_table`` reads; the policies stay in their run folders.
@@ -23,7 +23,9 @@ import numpy as np
 import pandas as pd
 
 from sidewalk._checks import check_choice, check_int
-from sidewalk.crossplay import evaluate_cell, evaluation_world, heldout_column, load_player
+from sidewalk.crossplay.arena import evaluate_cell
+from sidewalk.crossplay.pairings import evaluation_world
+from sidewalk.crossplay.players import heldout_column, load_player
 from sidewalk.partners.population import Member, population
 from sidewalk.report.crossplay import BEST_RESPONSES_CSV, best_response_warning
 from sidewalk.stats import interval_estimate

@@ -12,7 +12,8 @@ import pytest
 import scipy.stats
 import torch
 
-from sidewalk.crossplay import CrossplayError, run_crossplay
+from sidewalk.crossplay import run_crossplay
+from sidewalk.crossplay.players import CrossplayError
 from sidewalk.partners.population import PARTNERS_DIR, population
 from sidewalk.report.crossplay import ADHOC_CSV, adhoc_table
 

@@ -18,14 +18,10 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from sidewalk.config import validate
-from sidewalk.crossplay import (
-    COLUMNS,
-    CrossplayError,
-    convention,
-    evaluation_world,
-    load_player,
-    run_crossplay,
-)
+from sidewalk.crossplay import COLUMNS, run_crossplay
+from sidewalk.crossplay.conventions import convention
+from sidewalk.crossplay.pairings import evaluation_world
+from sidewalk.crossplay.players import CrossplayError, load_player
 from sidewalk.envs import DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
 from sidewalk.experiment import EVAL_SEED_OFFSET, Trial
@@ -317,7 +313,8 @@ def test_a_held_out_partner_a_row_trained_with_is_flagged_from_its_training_worl
     trained against today's default Dijkstra (random tie-breaks), a self-play row, and a population row did not."""
     import dataclasses
 
-    from sidewalk.crossplay import heldout_column, met_in_training
+    from sidewalk.crossplay.pairings import met_in_training
+    from sidewalk.crossplay.players import heldout_column
     from sidewalk.partners.population import population
 
     members = population("discrete", "heldout")

@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 
 CROSSPLAY_CSV = "crossplay.csv"
 CROSSPLAY_JSON = "crossplay.json"
-CONVENTIONS_CSV = "conventions.csv"  # the convention each row's policy follows with itself (sidewalk.crossplay.convention)
+CONVENTIONS_CSV = "conventions.csv"  # the convention each row's policy follows with itself (sidewalk.crossplay.conventions.convention)
 NOTES = "notes.md"  # what the matrix shows, written by hand beside the CSV
 ADHOC_CSV = "adhoc.csv"  # the ad-hoc score of each condition (adhoc_table), beside the matrix
 ADHOC_COLUMNS = ("condition", "runs", "partners", "iqm", "low", "high", "mean", "distinct_low", "distinct_high",
@@ -479,7 +479,7 @@ def _conventions_lines(meta: dict[str, Any], sub: str) -> list[str]:
         (
             "Each run's policy playing every agent on the same worlds: the side the agents pass on (\"left\": both "
             "keep to their own left) and its share of the episodes, and who swerves most "
-            "(`sidewalk.crossplay.convention`)."
+            "(`sidewalk.crossplay.conventions.convention`)."
         ),
         "",
         "| run | seed | passing side | share | yielder |",
