@@ -66,6 +66,22 @@ class FixedExplorationPolicy(TensorDictModuleBase):
             return self.actor(tensordict)
 
 
+class StochasticActorPolicies:
+    """The two policies of a learner whose ``actor`` is a distribution (PPO, TRPO and theirs): sampling it to
+    collect, its deterministic value to evaluate. Mixed in before ``Algorithm``; ``_build`` calls
+    ``_build_policies`` once ``self.actor`` exists."""
+
+    def _build_policies(self) -> None:
+        self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
+        self._evaluation = FixedExplorationPolicy(self.actor, ExplorationType.DETERMINISTIC)
+
+    def collection_policy(self) -> TensorDictModuleBase:
+        return self._collection
+
+    def evaluation_policy(self) -> TensorDictModuleBase:
+        return self._evaluation
+
+
 class Algorithm(abc.ABC):
     """A learner for a single-agent TorchRL env (a view of the Sidewalk with flat keys).
 

@@ -12,14 +12,12 @@ from typing import Any
 
 import torch
 from tensordict import NestedKey, TensorDictBase
-from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase
-from torchrl.envs.utils import ExplorationType
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from sidewalk._checks import check_int, check_range
-from sidewalk.algos.base import AlgoConfig, Algorithm, FixedExplorationPolicy
+from sidewalk.algos.base import AlgoConfig, Algorithm, StochasticActorPolicies
 from sidewalk.algos.networks import on_policy_networks
 from sidewalk.algos.replicas import broadcast_lead, clip_grad_norm_, logged, sample_mean, sample_std
 
@@ -129,7 +127,7 @@ def clipped_ppo_update(
     return {key: logged(torch.stack(values).mean(0), lead) for key, values in logs.items() if values}
 
 
-class ClippedPPOMixin:
+class ClippedPPOMixin(StochasticActorPolicies):
     """What the learners that ``clipped_ppo_update`` updates (PPO, IPPO and theirs) hold alike around their own
     networks and ``loss``: one Adam, the minibatch generator the checkpoint keeps, a sampling and a deterministic
     policy. Mixed in before ``Algorithm`` (or ``MultiAgentAlgorithm``); ``_build`` ends with ``_build_update``."""
@@ -138,14 +136,7 @@ class ClippedPPOMixin:
         # foreach: see TRPO's value optimizer
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=self.config.lr, foreach=True)
         self._generator = torch.Generator().manual_seed(0)
-        self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
-        self._evaluation = FixedExplorationPolicy(self.actor, ExplorationType.DETERMINISTIC)
-
-    def collection_policy(self) -> TensorDictModuleBase:
-        return self._collection
-
-    def evaluation_policy(self) -> TensorDictModuleBase:
-        return self._evaluation
+        self._build_policies()
 
     def modules(self) -> dict[str, torch.nn.Module]:
         return {"loss": self.loss}

@@ -24,17 +24,15 @@ from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictModuleBase
 from torch import nn
 from torch.distributions import kl_divergence
 from torchrl.envs import EnvBase
-from torchrl.envs.utils import ExplorationType
 from torchrl.modules import ProbabilisticActor
 from torchrl.objectives import LossModule
 from torchrl.objectives.value import GAE
 
 from sidewalk._checks import check_int, check_range
-from sidewalk.algos.base import AlgoConfig, Algorithm, FixedExplorationPolicy
+from sidewalk.algos.base import AlgoConfig, Algorithm, StochasticActorPolicies
 from sidewalk.algos.networks import on_policy_networks
 from sidewalk.algos.replicas import (
     assign_flat_,
@@ -326,7 +324,7 @@ def _line_search(
     return {**logs, "step_accepted": accepted.double(), "step_fraction": fraction_taken}
 
 
-class TRPO(Algorithm):
+class TRPO(StochasticActorPolicies, Algorithm):
     """TRPO for a single-agent env with ``observation`` (a vector or a uint8 image) and ``action`` (``Categorical``
     or ``OneHot`` for discrete actions, ``Bounded`` for continuous ones, sampled from a ``TanhNormal`` in the
     bounds with a state-independent std, as in baselines).
@@ -354,14 +352,7 @@ class TRPO(Algorithm):
         # foreach: one fused update over all parameter tensors; the default per-tensor loop on the CPU made the 80
         # small Adam steps of a value fit cost 2.5× as much (1.9 vs 0.75 ms a step, 2×32 MLP).
         self.value_optimizer = torch.optim.Adam(self.value.parameters(), lr=cfg.lr, foreach=True)
-        self._collection = FixedExplorationPolicy(self.actor, ExplorationType.RANDOM)
-        self._evaluation = FixedExplorationPolicy(self.actor, ExplorationType.DETERMINISTIC)
-
-    def collection_policy(self) -> TensorDictModuleBase:
-        return self._collection
-
-    def evaluation_policy(self) -> TensorDictModuleBase:
-        return self._evaluation
+        self._build_policies()
 
     def update(self, batch: TensorDictBase, replay_buffer: Any = None) -> dict[str, float]:
         cfg = self.config
