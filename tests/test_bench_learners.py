@@ -81,9 +81,10 @@ def test_sb3_policy_acts_in_physical_units():
     from stable_baselines3.common.vec_env import VecNormalize
 
     from sidewalk.bench.common import sb3_vec_env
+    from sidewalk.interop.gymnasium import world_kwargs
 
     experiment = _experiment("ppo")
-    envs = sb3_vec_env(learners.ENV_ID, 4, 0, **learners._face_kwargs(experiment))
+    envs = sb3_vec_env(learners.ENV_ID, 4, 0, **world_kwargs(experiment.world))
     assert (envs.action_space.low == -1).all() and (envs.action_space.high == 1).all()
     model = PPO("MlpPolicy", VecNormalize(envs, norm_reward=False), n_steps=8, batch_size=32, seed=0, device="cpu")
     view = experiment.world.make(4, 0, experiment.device)

@@ -197,15 +197,6 @@ def peer_settings_text(library: str, settings: dict[str, Any], normalize: bool) 
     return f"{library} {name}('MlpPolicy', {arguments}), {norm}"
 
 
-def _face_kwargs(experiment) -> dict[str, Any]:
-    """What the gymnasium face needs to build the view ``experiment.world.make`` builds for this experiment."""
-    kwargs: dict[str, Any] = {"opponent": experiment.world.opponent, "params": experiment.world.env_params}
-    if experiment.world.opponent != "centralized":
-        kwargs.update(ego=experiment.world.ego, end_on_ego_done=experiment.world.end_on_ego_done,
-                      opponent_kwargs=experiment.world.opponent_params)
-    return kwargs
-
-
 def sb3_deterministic_policy(model, view):
     """An SB3 model's ``predict(..., deterministic=True)`` as a TensorDict module (``observation`` → ``action``) on
     ``view``: observations normalised by the model's VecNormalize (if any), actions mapped back from [-1, 1] to
@@ -240,6 +231,7 @@ def run_peer(algo: str, library: str, setup: str, opponent: str, seed: int, nois
 
     from sidewalk.evaluate import evaluate
     from sidewalk.experiment import EVAL_SEED_OFFSET
+    from sidewalk.interop.gymnasium import world_kwargs
 
     experiment = compose_experiment(experiment_overrides(algo, opponent, seed, noise, eval_episodes, num_envs, threads))
     settings, normalize = SETTINGS[setup](experiment)
@@ -248,7 +240,7 @@ def run_peer(algo: str, library: str, setup: str, opponent: str, seed: int, nois
     with torch_threads(threads):
         torch.manual_seed(seed)
         start = time.perf_counter()
-        envs = sb3_vec_env(ENV_ID, experiment.num_envs, seed, **_face_kwargs(experiment))
+        envs = sb3_vec_env(ENV_ID, experiment.num_envs, seed, **world_kwargs(experiment.world))
         if normalize:
             envs = VecNormalize(envs, norm_obs=True, norm_reward=False)
         model = peer_class(library)("MlpPolicy", envs, seed=seed, device="cpu", verbose=0, **settings)
