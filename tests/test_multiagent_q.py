@@ -270,3 +270,22 @@ def test_a_self_play_run_resumes_exactly(tmp_path, name):
     assert whole["train/loss"].notna().all()
     assert whole["eval/team/success_rate"].notna().sum() == 2
     pd.testing.assert_frame_equal(resumed, whole)
+
+
+@pytest.mark.parametrize("name", Q_LEARNERS)
+def test_greedy_worlds_explore_not_at_all_and_the_others_at_epsilon(name):
+    """``greedy_worlds``: the first share of the worlds acts greedily in training (every agent of them, the pair an
+    evaluation plays); the rest explore at ε. At ε 1 the others' actions are uniform, so some differ from greedy."""
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    algo, env = make_learner(name, num_envs=8, greedy_worlds=0.25, eps_start=1.0, eps_end=1.0)
+    td = env.reset()
+    with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+        greedy = algo.actor(td.clone())[ACTION]
+        torch.manual_seed(3)
+        explored = [algo.explorer(td.clone())[ACTION] for _ in range(20)]
+    for actions in explored:
+        assert torch.equal(actions[:2], greedy[:2])  # round(0.25 × 8) = 2 greedy worlds, both agents greedy
+    assert any(not torch.equal(actions[2:], greedy[2:]) for actions in explored)
+    with pytest.raises(ValueError, match=r"algo.greedy_worlds=1.5 .* valid: \[0.0, 1.0\]"):
+        LEARNERS[name].Config(greedy_worlds=1.5)

@@ -24,6 +24,7 @@ from torchrl.envs.utils import ExplorationType, exploration_type
 from torchrl.modules import MLP, EGreedyModule, MultiAgentNetBase, QValueModule
 from torchrl.objectives import DQNLoss, HardUpdate, LossModule, SoftUpdate, ValueEstimators
 
+from sidewalk._checks import check_range
 from sidewalk.algos.base import MultiAgentAlgorithm, MultiAgentConfig
 from sidewalk.algos.dqn import DQNConfig, action_gap, decay_epsilon, loss_module_step, replay_updates
 from sidewalk.algos.networks import DuelingHead, is_image_spec, make_encoder
@@ -65,9 +66,18 @@ class IQLConfig(DQNConfig, MultiAgentConfig):
     double_dqn: bool = True
     loss_function: str = "smooth_l1"
     eps_ladder: float = 0.0
+    # The share of a batch's worlds in which every agent acts greedily while training (ε 0 for the whole episode):
+    # the greedy pair the evaluation plays, met in training, so that the values price the standoffs two greedy copies
+    # of one policy walk into and ε-greedy partners always break (docs/guide/multiagent.md, "The greedy pair").
+    greedy_worlds: float = 0.0
     lr_end: float = 5e-4  # = lr: no decay
     lr_decay_frames: int = 153_600
     advantage_learning: float = 0.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_range("algo.eps_ladder", self.eps_ladder, 0.0)
+        check_range("algo.greedy_worlds", self.greedy_worlds, 0.0, 1.0)
 
 
 class AgentQNetwork(MultiAgentNetBase):
@@ -120,11 +130,18 @@ class LadderEGreedy(EGreedyModule):
     """TorchRL's ε-greedy over every agent of every world, each with its own ε on a fixed ladder (Ape-X, Horgan
     et al. 2018: ε_k = ε^(1 + ladder·k/(K-1)) over the K agent slots of a batch), where ε is ``EGreedyModule``'s
     annealed value. ``ladder=0`` is plain ε-greedy. Agent a of world w takes rung (w + a·⌈B/N⌉) mod B, so every
-    world pairs agents at rungs far apart and every agent plays on every rung in some world."""
+    world pairs agents at rungs far apart and every agent plays on every rung in some world.
 
-    def __init__(self, spec, eps_init: float, eps_end: float, annealing_num_steps: int, ladder: float, **kwargs) -> None:
+    The first ``greedy_worlds`` share of the worlds (a world keeps its slot for its whole episode) explore not at all:
+    every agent there acts greedily, as an evaluation's agents do."""
+
+    def __init__(
+        self, spec, eps_init: float, eps_end: float, annealing_num_steps: int, ladder: float,
+        greedy_worlds: float = 0.0, **kwargs,
+    ) -> None:
         super().__init__(spec, eps_init=eps_init, eps_end=eps_end, annealing_num_steps=annealing_num_steps, **kwargs)
         self.ladder = float(ladder)
+        self.greedy_worlds = float(greedy_worlds)
 
     def rungs(self, shape: torch.Size, device: torch.device) -> torch.Tensor:
         """Each agent slot's place on the ladder, in [0, 1], for actions of ``shape`` (..., N)."""
@@ -134,12 +151,19 @@ class LadderEGreedy(EGreedyModule):
         rung = (torch.arange(worlds, device=device)[:, None] + agent_shift * torch.arange(n_agents, device=device)) % worlds
         return (rung / max(worlds - 1, 1)).reshape(shape)
 
+    def greedy(self, shape: torch.Size, device: torch.device) -> torch.Tensor:
+        """Whether each agent slot of actions of ``shape`` (..., N) is in a greedy world: the first
+        ``round(greedy_worlds × worlds)`` worlds, every agent of them."""
+        worlds = int(torch.Size(shape[:-1]).numel())
+        greedy = torch.arange(worlds, device=device) < round(self.greedy_worlds * worlds)
+        return greedy[:, None].expand(worlds, shape[-1]).reshape(shape)
+
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         if exploration_type() not in (ExplorationType.RANDOM, None):
             return tensordict
         action = tensordict.get(self.action_key)
         eps = self.eps ** (1.0 + self.ladder * self.rungs(action.shape, action.device))
-        explore = torch.rand(action.shape, device=action.device) < eps
+        explore = (torch.rand(action.shape, device=action.device) < eps) & ~self.greedy(action.shape, action.device)
         spec = self.spec[self.action_key] if isinstance(self.spec, Composite) else self.spec
         random_action = torch.randint(0, spec.space.n, action.shape, device=action.device)
         tensordict.set(self.action_key, torch.where(explore, random_action, action))
@@ -181,7 +205,7 @@ class IQL(MultiAgentAlgorithm):
         )
         self.greedy = LadderEGreedy(
             spec, eps_init=float(cfg.eps_start), eps_end=float(cfg.eps_end), annealing_num_steps=cfg.eps_decay_frames,
-            ladder=cfg.eps_ladder, action_key=self.ACTION_KEY, device=self.device,
+            ladder=cfg.eps_ladder, greedy_worlds=cfg.greedy_worlds, action_key=self.ACTION_KEY, device=self.device,
         )
         self.explorer = TensorDictSequential(self.actor, self.greedy)
         self.loss = self._make_loss(env, spec)
