@@ -247,6 +247,26 @@ def test_report_on_synthetic_runs_draws_every_figure(synthetic, tmp_path):
     assert point["mean"].item() == pytest.approx(0.4) and point["seeds"].item() == 3
 
 
+def test_every_sidewalk_runs_deadlock_rate_is_reported_where_its_runs_record_it(tmp_path):
+    """The greedy pair's standoffs are a first-class result: a self-play condition gets its team's deadlock rate
+    beside team success; runs made before the metric existed get no row of NaN."""
+    for recorded_it in (True, False):
+        root = tmp_path / f"recorded_{recorded_it}"
+        for seed in (0, 1):
+            cfg = job_config("selfplay_discrete", "algo", "iql", seed)
+            final = {"team/success_rate": 0.9 - 0.2 * seed, "agent0/success_rate": 0.9, "agent1/success_rate": 0.9}
+            if recorded_it:
+                final["deadlock_rate"] = 0.1 + 0.2 * seed
+            write_run(root / "selfplay" / f"{seed}_algo=iql,seed={seed}", cfg, final)
+        result = write_report([root], tmp_path / f"out_{recorded_it}", Settings(n_resamples=200))
+        numbers = pd.read_csv(result.out / "report.csv")
+        deadlock = numbers[(numbers.metric == "deadlock_rate") & (numbers.statistic == "mean")]
+        if recorded_it:
+            assert deadlock.value.tolist() == [pytest.approx(0.2)]  # seeds 0 and 1: 0.1, 0.3
+        else:
+            assert deadlock.empty
+
+
 def test_runs_of_two_seeds_get_coarse_intervals_and_centralized_runs_per_agent_rows(synthetic, tmp_path):
     result = write_report([synthetic / "fig5_continuous"], tmp_path / "out", Settings(n_resamples=500))
     report = result.report_md.read_text()

@@ -52,7 +52,10 @@ log = logging.getLogger(__name__)
 
 
 CURVE_METRICS = {"success_rate": "success rate", "collision_rate": "collision rate"}
-SCENARIO_METRICS = ("makespan", "deadlock_rate")  # reported for runs in a scenario other than the sidewalk
+# Whole-team coordination metrics of summary.json (sidewalk.evaluate), beside team success: in the scenarios other than
+# the sidewalk both; in the sidewalk the standoff rate (the greedy pair's failure, issue "Who yields, learned") where
+# the runs record it.
+SCENARIO_METRICS = ("makespan", "deadlock_rate")
 SOCIAL_NOTE = (
     "How the passes felt: the social measures of the final evaluation (`sidewalk.social`, defined in the "
     "evaluation guide's \"Social measures of a pass\"), each seed's value over its episodes; mean ± SE and the "
@@ -550,8 +553,9 @@ def _family_finals(family: str, members: Sequence[Condition], settings: Settings
                 numbers.add_final(f"family:{family}", condition, final)
         team = finals(condition, ["team"], "success_rate", settings)
         if condition.flat.get("env.layout", "sidewalk") != "sidewalk":
-            # The scenarios' coordination metrics (sidewalk.evaluate): whole-team keys of summary.json.
             team += [final_of(condition, "team", key, key, settings) for key in SCENARIO_METRICS]
+        elif recorded(deadlock := final_of(condition, "team", "deadlock_rate", "deadlock_rate", settings)):
+            team.append(deadlock)
         social = social_finals(condition, settings)
         if social:
             social_rows.append((condition, social))
