@@ -67,7 +67,7 @@ def test_on_policy_multiagent_learners_take_image_settings_on_grid_images(algo):
 @pytest.mark.parametrize(
     "overrides, expected",
     [
-        ([], (128, 300, 25, 512)),  # DQN: 4 steps of 128 worlds an iteration, 300 of them
+        ([], (128, 400, 25, 512)),  # DQN: 4 steps of 128 worlds an iteration, 400 of them
         (["env=continuous"], (128, 500, 50, 2048)),  # TRPO
         (["iterations=7", "eval_every=3", "num_envs=8"], (8, 7, 3, 512)),  # the command line wins
         (["+experiment=fig5_discrete"], (32, 5000, 50, 128)),  # the reference runs' settings, pinned

@@ -15,7 +15,11 @@ from sidewalk.run_folder import SUMMARY
 
 # Keys that change neither what a run learns nor what it measures, so they never split runs into conditions
 # (a resumed run's config says resume=true; a run logged to TensorBoard is the same experiment as one logged to CSV).
-BOOKKEEPING_KEYS = ("seed", "resume", "device", "torch_threads", "checkpoint_every", "logger", "plots")
+# A learner's defaults of the run's length, evaluations and worlds are not what the run did: `iterations`,
+# `eval_every` and `num_envs` are (a run made before DQN's default went from 300 to 400 iterations, at iterations=200,
+# is today's run at iterations=200).
+BOOKKEEPING_KEYS = ("seed", "resume", "device", "torch_threads", "checkpoint_every", "logger", "plots",
+                    "algo.default_iterations", "algo.default_eval_every", "algo.default_num_envs")
 OPPONENT_ORDER = ("random", "dijkstra", "prm", "centralized")
 DOMAIN_ORDER = ("discrete", "continuous")
 def _is_bookkeeping(key: str) -> bool:
