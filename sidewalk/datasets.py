@@ -36,6 +36,7 @@ from sidewalk._minari import jax_free_collector_class
 from sidewalk.envs import INFO_KEYS
 from sidewalk.interop.gymnasium import CENTRALIZED, ENV_IDS, SidewalkGymEnv
 from sidewalk.opponents.base import opponent_config
+from sidewalk.later_keys import LATER_ENV_KEYS
 from sidewalk.version import __version__
 from sidewalk.world import World
 
@@ -333,11 +334,14 @@ def _differences(pinned: Mapping[str, Any], current: Mapping[str, Any]) -> list[
     differ = [f"{key} {pinned.get(key)!r} (now {current[key]!r})"
               for key in ("env_version", "sidewalk_version") if pinned.get(key) != current[key]]
     old, new = pinned.get("env_config", {}), current["env_config"]
+    # A key that came in later, at the value the env had before it (sidewalk.later_keys), builds the recorded env.
+    later = {key.removeprefix("env."): value for key, value in LATER_ENV_KEYS.get(new.get("domain"), {}).items()}
     for key in sorted(set(old) | set(new)):
         if key not in new:
             differ.append(f"env config key {key!r} (pinned {old[key]!r}) is no longer one of the env's")
         elif key not in old:
-            differ.append(f"env config key {key!r} is new (now {new[key]!r})")
+            if not (key in later and new[key] == later[key]):
+                differ.append(f"env config key {key!r} is new (now {new[key]!r})")
         elif isinstance(old[key], dict) and isinstance(new[key], dict):
             differ += [f"env config {key}.{item}" + _change(old[key], new[key], item)
                        for item in sorted(set(old[key]) | set(new[key])) if old[key].get(item) != new[key].get(item)]

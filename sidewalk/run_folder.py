@@ -351,9 +351,11 @@ def check(run_dir: Path, config: dict[str, Any], resume: bool) -> tuple[int, int
         raise RunFolderError(f"resume=true but {saved} does not exist: {run_dir} is not a run folder")
     from sidewalk.schema import with_schema_defaults  # the schemas import the learners: only when resuming
 
-    # Keys added to the code since the folder was written compare at their defaults (the behaviour it ran with).
-    old = OmegaConf.to_container(with_schema_defaults(OmegaConf.load(saved)), resolve=True)
-    changes = {k: v for k, v in config_changes(old, config).items() if k not in RESUME_MAY_CHANGE}
+    # Keys added to the code since the folder was written compare at their defaults (the behaviour it ran with), on
+    # both sides: a config made from the folder's own config.yaml lacks them too.
+    old, new = (OmegaConf.to_container(with_schema_defaults(OmegaConf.create(c)), resolve=True)
+                for c in (OmegaConf.load(saved), config))
+    changes = {k: v for k, v in config_changes(old, new).items() if k not in RESUME_MAY_CHANGE}
     grown = changes.pop("iterations", None)
     if grown is not None and not (isinstance(grown[0], int) and isinstance(grown[1], int) and grown[1] > grown[0]):
         changes["iterations"] = grown  # only a larger budget continues the same experiment
