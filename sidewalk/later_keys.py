@@ -12,7 +12,7 @@ LATER_KEYS: dict[str, Any] = {"shield": False, "other_play": False}
 # starts' and goals' jitter.
 LATER_ENV_KEYS: dict[str, dict[str, Any]] = {
     "discrete": {"env.cost": "collision", "env.near_miss_margin": 1.0, "env.start_jitter_rows": 0,
-                 "env.goal_jitter_rows": 0},
+                 "env.goal_jitter_rows": 0, "env.start_jitter_cells": 0, "env.goal_jitter_cells": 0},
     "continuous": {"env.cost": "collision", "env.near_miss_margin": 0.3, "env.observe_route": False,
                    "env.start_jitter_m": 0.0, "env.goal_jitter_m": 0.0, "env.heading_jitter_rad": 0.0},
 }
@@ -25,8 +25,8 @@ LATER_ALGO_KEYS: dict[str, tuple[Any, tuple[str, ...]]] = {
 LATER_OPPONENT_KEYS: dict[str, dict[str, Any]] = {"dijkstra": {"tie_break": "progress"}}
 # The evaluation protocol (eval group) of a run written before protocols existed: the scenario's own worlds.
 NOMINAL_EVAL: dict[str, Any] = {
-    "name": "nominal", "start_jitter_rows": 0, "goal_jitter_rows": 0, "start_jitter_m": 0.0, "goal_jitter_m": 0.0,
-    "heading_jitter_rad": 0.0, "train_alike": True,
+    "name": "nominal", "start_jitter_rows": 0, "goal_jitter_rows": 0, "start_jitter_cells": 0, "goal_jitter_cells": 0,
+    "start_jitter_m": 0.0, "goal_jitter_m": 0.0, "heading_jitter_rad": 0.0, "train_alike": True,
 }
 
 

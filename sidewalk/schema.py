@@ -81,7 +81,7 @@ class LoggerSchema:
 
 # The env parameters an evaluation protocol sets, per domain: how its worlds differ from one another.
 PROTOCOL_ENV_FIELDS = {
-    "discrete": ("start_jitter_rows", "goal_jitter_rows"),
+    "discrete": ("start_jitter_rows", "goal_jitter_rows", "start_jitter_cells", "goal_jitter_cells"),
     "continuous": ("start_jitter_m", "goal_jitter_m", "heading_jitter_rad"),
 }
 
@@ -89,7 +89,8 @@ PROTOCOL_ENV_FIELDS = {
 @dataclass
 class EvalSchema:
     """An evaluation protocol (``eval=NAME``, docs/guide/evaluation.md): how an evaluation's worlds differ from one
-    another. Each start and goal is moved within the stated bounds on every reset (grid: rows across the sidewalk;
+    another. Each start and goal is moved within the stated bounds on every reset (grid: rows across the sidewalk, or
+    to a free cell within ``*_jitter_cells`` rows and columns where the walls hold no row move;
     continuous: metres in x and y, and the start heading by up to ``heading_jitter_rad``), so that at noise 0 the
     worlds play different episodes and a success rate is a rate. ``train_alike``: training draws its worlds the same
     way (the env group's jitter defaults to the protocol's); false keeps training on the env group's own."""
@@ -97,6 +98,8 @@ class EvalSchema:
     name: str = MISSING
     start_jitter_rows: int = 0
     goal_jitter_rows: int = 0
+    start_jitter_cells: int = 0
+    goal_jitter_cells: int = 0
     start_jitter_m: float = 0.0
     goal_jitter_m: float = 0.0
     heading_jitter_rad: float = 0.0
@@ -205,18 +208,24 @@ def trained_jitter(*, _root_: Any, _node_: Any) -> float | int:
 def within_walls(bound: float, *, _root_: Any, _node_: Any) -> float | int:
     """``${sidewalk.within_walls:B}``, a bound of ``conf/eval/perturbed.yaml``: ``B``, or less where the scenario's
     walls allow less (the largest bound that keeps every start, or goal, on free cells: ``sidewalk.envs.layouts.jitter``),
-    so the protocol perturbs every scenario as far as it can hold. A bound given on the command line is taken as it is
+    so the protocol perturbs every scenario as far as it can hold. A grid's cell bound (``start_jitter_cells``) stands
+    in where the walls hold no row move at all (the circle's corners, the zipper's lanes, the teams' edge rows: one
+    episode a world otherwise), and is 0 where rows move. A bound given on the command line is taken as it is
     and checked (``config.validate`` refuses one that puts an agent into a wall); the run's ``config.yaml`` records
     the number."""
     from sidewalk.envs.layouts import grid_layout, plane_layout
     from sidewalk.envs.layouts.jitter import largest_grid_jitter, largest_plane_jitter
 
     env, name = _root_.env, node_key(_node_)
-    if (env.domain == "discrete") != name.endswith("_rows") or draws_starts(env.layout):
+    if name.endswith("_cells") and (env.domain != "discrete" or draws_starts(env.layout)):
+        return 0  # a cell bound exists only to stand in for rows that cannot move; nowhere else is it drawn
+    if (env.domain == "discrete") != name.endswith(("_rows", "_cells")) or draws_starts(env.layout):
         return bound  # the other domain's bound, or a scenario that draws its starts: not applied
     try:
         if env.domain == "discrete":
             layout = grid_layout(env.layout, env.width_cells, env.length_cells, env.n_agents, env.min_start_goal_cells)
+            if name.endswith("_cells"):
+                return bound if largest_grid_jitter(layout, name.replace("_cells", "_rows")) == 0 else 0
             return min(bound, largest_grid_jitter(layout, name))
         layout = plane_layout(env.layout, env.length_m, env.width_m, env.n_agents, env.agent_radius_m,
                               env.goal_radius_m, env.min_start_goal_m)

@@ -31,7 +31,8 @@ LEARNER_PLAYS_ALL = ("centralized", "self")
 # Env parameters a learned partner may have been trained under differently: they change the game's payoffs, noise or
 # where its episodes start (an evaluation protocol's jitter), not what an observation means or what an action does.
 MAY_DIFFER = ("noise", "rewards", "max_steps", "remove_crashed", "check_actions", "start_jitter_rows",
-              "goal_jitter_rows", "start_jitter_m", "goal_jitter_m", "heading_jitter_rad")
+              "goal_jitter_rows", "start_jitter_cells", "goal_jitter_cells", "start_jitter_m", "goal_jitter_m",
+              "heading_jitter_rad")
 
 
 @dataclass(frozen=True)

@@ -63,6 +63,35 @@ def test_grid_jitter_moves_starts_and_goals_across_the_sidewalk_within_its_bound
     assert len({image.numpy().tobytes() for image in images[:, 0]}) > 1
 
 
+@pytest.mark.parametrize("layout, rows, cols, n_agents", [("circle", 9, 9, 4), ("zipper", 7, 15, 2), ("teams", 3, 12, 4)])
+def test_cell_jitter_draws_every_free_cell_around_each_start_and_goal_and_no_wall(layout, rows, cols, n_agents):
+    """Where the walls hold no row move (one episode a world before), each start and goal goes to a uniform free cell
+    within one row and column of its own: every such cell is drawn, none off the grid or in a wall, no two agents
+    share a start or a goal, and 256 worlds play far more than 64 distinct episodes."""
+    nominal = grid_layout(layout, rows, cols, n_agents)
+    env = DiscreteSidewalkEnv(num_envs=1024, seed=0, layout=layout, width_cells=rows, length_cells=cols,
+                              n_agents=n_agents, start_jitter_cells=1, goal_jitter_cells=1, observation="vector")
+    td = env.reset()
+    start, goal = td["agents", "state"], td["agents", "goal"]
+    blocked = set(nominal.blocked)
+    for agent in range(n_agents):
+        for drawn, (row, col) in ((start[:, agent], nominal.starts[agent]), (goal[:, agent], nominal.goals[agent])):
+            around = {(r, c) for r in (row - 1, row, row + 1) for c in (col - 1, col, col + 1)
+                      if 0 <= r < rows and 0 <= c < cols and (r, c) not in blocked}
+            assert set(map(tuple, drawn.tolist())) == around
+    for cells in (start, goal):
+        flat = cells[..., 0] * cols + cells[..., 1]
+        assert (flat.sort(-1).values.diff(dim=-1) != 0).all()  # no two agents in one start (goal) cell
+    assert not (start == goal).all(-1).any()
+    worlds = torch.cat([start, goal], -1)[:256].flatten(1)
+    assert len({tuple(world.tolist()) for world in worlds}) > 64
+
+
+def test_cell_and_row_jitter_of_one_start_are_refused_together():
+    with pytest.raises(ValueError, match=r"start_jitter_rows=1 and start_jitter_cells=1: .* set one of them to 0"):
+        DiscreteSidewalkEnv(start_jitter_rows=1, start_jitter_cells=1)
+
+
 def test_jitter_draws_repeat_for_one_seed_and_each_replica_draws_as_its_lone_env():
     def starts(seed, num_envs=32):
         env = DiscreteSidewalkEnv(num_envs=num_envs, seed=seed, start_jitter_rows=1, goal_jitter_rows=1,
@@ -135,14 +164,19 @@ def test_the_default_protocol_perturbs_evaluation_and_training_alike():
 @pytest.mark.parametrize(
     "overrides, expected",
     [
-        (["env.layout=zipper"], 0),  # its lanes are one cell wide: the protocol perturbs what the walls allow
-        (["env.layout=door", "env.n_agents=3"], 1),
-        (["env.layout=random"], 1),  # a scenario that draws its starts keeps its own (the bound is not applied)
+        (["env.layout=zipper"], (0, 1)),  # its lanes are one cell wide: no row moves, cells stand in
+        (["env.layout=circle", "env.n_agents=4"], (0, 1)),  # corners
+        (["+experiment=selfplay_teams_discrete"], (0, 1)),
+        (["env.layout=door", "env.n_agents=3"], (1, 0)),
+        ([], (1, 0)),  # the sidewalk: rows, and no cell draws (its worlds stay what they were)
+        (["env.layout=random"], (1, 0)),  # a scenario that draws its starts keeps its own (the bounds are not applied)
     ],
 )
 def test_the_protocol_bounds_fit_each_scenario_s_walls(overrides, expected):
     experiment = validate(composed(*overrides))
-    assert experiment.evaluation.start_jitter_rows == expected
+    assert (experiment.evaluation.start_jitter_rows, experiment.evaluation.start_jitter_cells) == expected
+    if "env.layout=random" not in overrides:
+        assert experiment.world.env_params.start_jitter_cells == expected[1]  # trained alike
     if "env.layout=random" in overrides:
         assert experiment.eval_world.env_params.start_jitter_rows == 0
 
@@ -175,7 +209,7 @@ def test_a_run_records_its_protocol_its_distinct_episodes_and_its_absolute_metri
           "algo.learning_starts=0", "algo.batch_size=16", "logger=none")
     summary = json.loads((run / "summary.json").read_text())
     assert summary["eval_protocol"] == {"name": "perturbed", "start_jitter_rows": 1, "goal_jitter_rows": 1,
-                                        "train_alike": True}
+                                        "start_jitter_cells": 0, "goal_jitter_cells": 0, "train_alike": True}
     assert summary["distinct_episodes"] >= 64  # 81 start and goal rows, and the partner's own tie-breaks
     absolute = summary["absolute"]
     assert absolute["episodes"] == 1280 and absolute["iteration"] in (1, 2)

@@ -40,7 +40,8 @@ ALGORITHM_CONFIGS = {
 }
 COLUMNS = ["algorithm", "task", "observation", "state", "protocol", "config", "seed", "frames", "wall_s", "team_success",
            "deadlock", "agent_success", "team_success_sampled", "distinct_episodes"]
-JITTER_KEYS = ("start_jitter_rows", "goal_jitter_rows", "start_jitter_m", "goal_jitter_m", "heading_jitter_rad")
+JITTER_KEYS = ("start_jitter_rows", "goal_jitter_rows", "start_jitter_cells", "goal_jitter_cells", "start_jitter_m",
+               "goal_jitter_m", "heading_jitter_rad")
 
 
 def task_protocol(task_config: dict[str, Any]) -> str:

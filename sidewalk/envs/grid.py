@@ -80,6 +80,9 @@ class DiscreteParams:
     # (sidewalk.envs.layouts.jitter); 0: the scenario's own cells.
     start_jitter_rows: int = 0
     goal_jitter_rows: int = 0
+    # ... or to a uniform free cell within k rows and columns of its own (where the walls hold no row move).
+    start_jitter_cells: int = 0
+    goal_jitter_cells: int = 0
     width_cells: int = 7
     length_cells: int = 15
     noise: float = 0.0  # probability that an agent's action is replaced by a uniformly random one
@@ -96,6 +99,8 @@ class DiscreteParams:
         check_int("min_start_goal_cells", self.min_start_goal_cells, 1)
         check_int("start_jitter_rows", self.start_jitter_rows, 0)
         check_int("goal_jitter_rows", self.goal_jitter_rows, 0)
+        check_int("start_jitter_cells", self.start_jitter_cells, 0)
+        check_int("goal_jitter_cells", self.goal_jitter_cells, 0)
         check_int("width_cells", self.width_cells, 1, 255)
         check_int("length_cells", self.length_cells, 2, 255)
         check_range("noise", self.noise, 0.0, 1.0)
@@ -148,8 +153,9 @@ class DiscreteSidewalkEnv(SidewalkEnvBase):
             layout = p.layout
         else:
             layout = grid_layout(p.layout, p.width_cells, p.length_cells, p.n_agents, p.min_start_goal_cells)
-        if p.start_jitter_rows or p.goal_jitter_rows:
-            return JitteredGridLayout(layout, p.start_jitter_rows, p.goal_jitter_rows)
+        if p.start_jitter_rows or p.goal_jitter_rows or p.start_jitter_cells or p.goal_jitter_cells:
+            return JitteredGridLayout(layout, p.start_jitter_rows, p.goal_jitter_rows, p.start_jitter_cells,
+                                      p.goal_jitter_cells)
         return layout
 
     def _make_layout(self) -> GridLayout | RandomGridLayout:

@@ -223,13 +223,15 @@ def _runs_section(conditions: Sequence[Condition], numbers: NumberLog, out: Path
 
 def protocol_text(flat: dict[str, Any]) -> str:
     """A run's evaluation protocol as the Conditions table names it: ``perturbed (starts ±1, goals ±1 rows)``,
+    ``perturbed (starts ±1, goals ±1 cells)``,
     ``nominal``; ``, trained on fixed starts`` where training did not draw its worlds alike."""
     name = str(flat.get("eval.name", "nominal"))
     if flat.get("env.domain") == "discrete":
-        bounds = [(what, flat.get(f"eval.{key}", 0)) for what, key in
-                  (("starts", "start_jitter_rows"), ("goals", "goal_jitter_rows"))]
-        parts = [f"{what} ±{value}" for what, value in bounds if value]
-        text = f"{', '.join(parts)} rows" if parts else ""
+        by_unit = []  # "starts ±1, goals ±1 rows", "starts ±1, goals ±1 cells"
+        for unit in ("rows", "cells"):
+            parts = [f"{what}s ±{value}" for what in ("start", "goal") if (value := flat.get(f"eval.{what}_jitter_{unit}", 0))]
+            by_unit += [f"{', '.join(parts)} {unit}"] if parts else []
+        text = "; ".join(by_unit)
     else:
         bounds = [(what, flat.get(f"eval.{key}", 0.0), unit) for what, key, unit in
                   (("starts", "start_jitter_m", "m"), ("goals", "goal_jitter_m", "m"),

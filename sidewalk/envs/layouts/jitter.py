@@ -5,7 +5,10 @@ episode and an evaluation's rate is one episode's 0 or 1. ``JitteredGridLayout``
 every reset, each agent's start and goal around the scenario's (its *nominal* layout, ``nominal``):
 
 - grid: each start and goal moved across the sidewalk by a whole number of rows, uniform in
-  [-``start_jitter_rows``, ``start_jitter_rows``] (goals: ``goal_jitter_rows``);
+  [-``start_jitter_rows``, ``start_jitter_rows``] (goals: ``goal_jitter_rows``); or, in a scenario whose walls hold
+  no row move (the circle's corners, the zipper's lanes, the teams' edge rows), to a free cell within
+  ``start_jitter_cells`` (``goal_jitter_cells``) rows and columns of its own, uniform over those cells (one kind of
+  move per start or goal: rows or cells);
 - continuous: each start and goal moved by a uniform offset in the square ±``start_jitter_m`` (``goal_jitter_m``) in x
   and y, each start heading turned by a uniform angle in ±``heading_jitter_rad``.
 
@@ -89,14 +92,40 @@ def largest_plane_jitter(layout: PlaneLayout, name: str, agent_radius_m: float) 
     return max(largest, 0.0)
 
 
+def free_cells_within(layout: GridLayout, cells: tuple[tuple[int, int], ...], k: int) -> list[list[tuple[int, int]]]:
+    """For each of ``cells``, the free cells of ``layout`` (in the grid, off its walls) at most ``k`` rows and ``k``
+    columns from it, itself included, in row-major order."""
+    blocked = set(layout.blocked)
+    return [
+        [(r, c) for r in range(row - k, row + k + 1) for c in range(col - k, col + k + 1)
+         if 0 <= r < layout.rows and 0 <= c < layout.cols and (r, c) not in blocked]
+        for row, col in cells
+    ]
+
+
+def _draw_cells(choices: list[list[tuple[int, int]]], shape: tuple[int, ...], generator: torch.Generator) -> torch.Tensor:
+    """Cells (*shape, N, 2) int64, each agent's drawn uniformly from its ``choices`` (one list per agent)."""
+    device = generator.device
+    counts = torch.tensor([len(c) for c in choices], device=device)
+    table = torch.zeros(len(choices), int(counts.max()), 2, dtype=torch.int64, device=device)
+    for agent, cells in enumerate(choices):
+        table[agent, : len(cells)] = torch.tensor(cells, dtype=torch.int64, device=device)
+    pick = (torch.rand((*shape, len(choices)), generator=generator, device=device) * counts).long()
+    pick = torch.minimum(pick, counts - 1)  # rand < 1, but float rounding may reach the count
+    return table[torch.arange(len(choices), device=device), pick]
+
+
 @dataclass(frozen=True)
 class JitteredGridLayout:
     """``nominal`` (a fixed ``GridLayout``) with every start and goal moved across the sidewalk by up to
-    ``start_jitter_rows`` / ``goal_jitter_rows`` rows, drawn per world and per episode (see the module docstring)."""
+    ``start_jitter_rows`` / ``goal_jitter_rows`` rows, or to a free cell within ``start_jitter_cells`` /
+    ``goal_jitter_cells`` rows and columns, drawn per world and per episode (see the module docstring)."""
 
     nominal: GridLayout
     start_jitter_rows: int = 0
     goal_jitter_rows: int = 0
+    start_jitter_cells: int = 0
+    goal_jitter_cells: int = 0
 
     fixed = False
 
@@ -115,6 +144,14 @@ class JitteredGridLayout:
                 raise ValueError(
                     f"{name}={bound} puts an agent outside the {self.rows}×{self.cols} grid or inside a wall; "
                     f"valid: 0..{largest}"
+                )
+        for what in ("start", "goal"):
+            cells, rows = getattr(self, f"{what}_jitter_cells"), getattr(self, f"{what}_jitter_rows")
+            check_int(f"{what}_jitter_cells", cells, 0, max(self.rows, self.cols) - 1)
+            if cells and rows:
+                raise ValueError(
+                    f"{what}_jitter_rows={rows} and {what}_jitter_cells={cells}: a {what} moves by rows or to a cell "
+                    f"around it, not both; set one of them to 0"
                 )
 
     # The nominal layout's geometry: what the env, the planners and the renderers read.
@@ -142,6 +179,13 @@ class JitteredGridLayout:
         goals = nominal_goals.unsqueeze(0).repeat(CANDIDATES, 1, 1, 1)
         starts[..., 0] += start_rows
         goals[..., 0] += goal_rows
+        # Cell moves draw nothing at 0, so the row-jittered worlds of a seed stay the worlds they were.
+        if self.start_jitter_cells:
+            choices = free_cells_within(self.nominal, self.nominal.starts, self.start_jitter_cells)
+            starts = _draw_cells(choices, (CANDIDATES, n), generator)
+        if self.goal_jitter_cells:
+            choices = free_cells_within(self.nominal, self.nominal.goals, self.goal_jitter_cells)
+            goals = _draw_cells(choices, (CANDIDATES, n), generator)
         start_cell = starts[..., 0] * self.cols + starts[..., 1]
         goal_cell = goals[..., 0] * self.cols + goals[..., 1]
         pair = ~torch.eye(n_agents, dtype=torch.bool, device=generator.device)
