@@ -77,7 +77,8 @@ def test_the_matrix_has_a_cell_for_every_row_and_partner(runs, matrix):
     assert list(frame["partner"][: len(partners)]) == partners
     assert (frame["skipped"] == "").all()
     assert (frame["episodes"] == EPISODES).all()
-    assert frame[["success", "team_success", "collision_rate"]].notna().all().all()
+    assert frame[["success", "team_success", "collision_rate", "deadlock_rate"]].notna().all().all()
+    assert (frame["deadlock_rate"] <= 1 - frame["team_success"] + 1e-9).all()  # a standoff is a failed episode
     by_run = frame.set_index(["row_run", "partner"])
     s0, s1 = str(runs["dqn_dijkstra_s0"]), str(runs["dqn_dijkstra_s1"])
     assert by_run.loc[(s0, s0), "self_pair"] and by_run.loc[(s0, s0), "same_condition"]
@@ -209,13 +210,14 @@ def test_the_runner_writes_the_same_csv_for_the_same_seed_with_figures_and_repor
     meta = json.loads((out / "crossplay.json").read_text())
     assert meta["world_seed"] == 5 + EVAL_SEED_OFFSET and meta["noise"] == 0.2 and meta["episodes"] == 4
     trained = OmegaConf.load(runs["dqn_dijkstra_s0"] / "config.yaml").env  # eval=perturbed: the rows' worlds moved
-    assert meta["jitter"] == {"start_jitter_rows": trained.start_jitter_rows, "goal_jitter_rows": trained.goal_jitter_rows}
+    assert meta["jitter"] == {"start_jitter_rows": trained.start_jitter_rows, "goal_jitter_rows": trained.goal_jitter_rows,
+                              "start_jitter_cells": 0, "goal_jitter_cells": 0}
     assert meta["jitter"]["start_jitter_rows"] >= 1
     assert meta["command"].startswith("python runners/crossplay.py ") and "--seed 5" in meta["command"]
     figures = sorted(path.name for path in (out / "figures").glob("*.png"))
     assert figures == sorted(
         f"crossplay{part}_{metric}.png" for part in ("", "_by_condition")
-        for metric in ("success", "collision_rate", "team_success")
+        for metric in ("success", "collision_rate", "team_success", "deadlock_rate")
     )
     conventions = pd.read_csv(out / "conventions.csv")
     assert sorted(conventions["row_run"]) == sorted(rows) and conventions["episodes"].eq(4).all()

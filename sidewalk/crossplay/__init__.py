@@ -80,6 +80,7 @@ COLUMNS = (
     "collision_rate",
     "partner_collision_rate",
     "team_success",
+    "deadlock_rate",
     "return",
     "path_efficiency",
     "partner_path_efficiency",

@@ -28,6 +28,7 @@ METRICS = {  # CSV column -> key of sidewalk.evaluate's metrics in the row's ego
     "collision_rate": "ego/collision_rate",
     "partner_collision_rate": "other/collision_rate",
     "team_success": "team/success_rate",
+    "deadlock_rate": "deadlock_rate",  # episodes that timed out with the unfinished agents stuck in front of each other
     "return": "ego/return",
     "path_efficiency": "ego/path_efficiency",  # straight-line distance over the path walked, arrived episodes only
     "partner_path_efficiency": "other/path_efficiency",

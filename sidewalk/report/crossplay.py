@@ -45,6 +45,7 @@ HEATMAP_METRICS = {
     "success": ("success of the row's agent", "viridis"),
     "collision_rate": ("collision rate of the row's agent", "magma_r"),
     "team_success": ("team success (every agent arrived)", "viridis"),
+    "deadlock_rate": ("deadlock rate (the pair stuck in front of each other to the time limit)", "magma_r"),
 }
 ANNOTATE_MAX_CELLS = 600  # beyond this many cells, a heatmap's numbers are unreadable: colours only
 
@@ -423,6 +424,8 @@ def crossplay_section(
     md = [heading, ""] + _how_it_was_made(frame, meta, out, folder) + _adhoc_lines(frame, sub, numbers, responses)
     md += _conventions_lines(meta, sub)
     for metric, (title, cmap) in HEATMAP_METRICS.items():
+        if metric not in frame or frame[metric].isna().all():
+            continue  # a matrix made before the metric existed
         md += _metric_lines(frame, metric, title, cmap, figures_dir, prefix, out, figures, numbers, sub)
     return md + _skipped_lines(frame, sub) + _notes_lines(meta, sub)
 
