@@ -1,6 +1,7 @@
 """The sidewalk as BenchMARL tasks (sidewalk.interop.benchmarl): configs that match the self-play presets, specs as
-BenchMARL reads them, its command line, and BenchMARL's MAPPO (continuous) and IQL / QMIX (grid images, CNN)
-training two small iterations. The README's test command installs BenchMARL, so these run in .ci/run."""
+BenchMARL reads them, its command line, BenchMARL's MAPPO (continuous) and IQL / QMIX (grid images, CNN) training two
+small iterations, and the dueling Q-value model (layers/dueling_mlp) that the grid's tuned settings choose. The
+README's test command installs BenchMARL, so these run in .ci/run."""
 
 from __future__ import annotations
 
@@ -125,7 +126,7 @@ def guide_command() -> list[str]:
 
 @pytest.mark.parametrize(("algorithm", "task", "budget"), [
     ("mappo", "door_continuous", ["experiment.on_policy_n_minibatch_iters=1"]),  # 1 of its 40 minibatch steps
-    ("iql", "sidewalk_discrete", ["experiment.off_policy_n_optimizer_steps=1"]),  # 1 of its 64 optimiser steps
+    ("vdn", "door_discrete", ["experiment.off_policy_n_optimizer_steps=1"]),  # 1 of its 64 optimiser steps
 ], ids=["on_policy", "off_policy"])
 def test_the_guide_s_command_starts_each_kind_of_tuned_pair(algorithm, task, budget, tmp_path):
     # As written but for the pair and a small budget (one batch, one optimiser step; nothing of the batch or the
@@ -231,6 +232,13 @@ def test_the_command_line_s_help_names_the_tasks_and_the_tuned_settings(capsys):
      "error: task=sidewalk/dor_discrete is not a BenchMARL task (did you mean sidewalk/door_discrete?)"),
     (["algorithm=mapo", "task=sidewalk/door_continuous"],
      "error: algorithm=mapo is not a BenchMARL algorithm (did you mean mappo?); valid: iddpg, ippo, iql,"),
+    (["algorithm=iql", "task=sidewalk/door_continuous", "model=layers/dueling_mpl"],
+     ("error: model=layers/dueling_mpl is not a BenchMARL model (did you mean layers/dueling_mlp?); valid: layers/cnn, "
+      "layers/deepsets, layers/dueling_mlp, layers/gnn, layers/gru, layers/lstm, layers/mlp, sequence")),
+    # A tuned file's model merges over the command line's: layers/mlp would run as the dueling model, silently.
+    (["-m", "algorithm=mappo,iql", "task=sidewalk/sidewalk_discrete", "model=layers/mlp"],
+     ("error: model=layers/mlp: the tuned settings of sidewalk/sidewalk_discrete and iql choose model "
+      "layers/dueling_mlp; add tuned=default to run BenchMARL's defaults with another")),
 ])
 def test_a_misspelt_task_or_algorithm_is_one_error_naming_the_sidewalk_s_tasks(args, error, capsys):
     from sidewalk.interop.benchmarl.__main__ import main
@@ -248,14 +256,27 @@ def tuned_pairs():
 
 def test_tuned_settings_ship_for_the_issue_s_pairs():
     # The continuous sidewalk has none: BenchMARL's defaults learn it (docs/guide/benchmarl.md).
-    assert tuned_pairs() == [("door_continuous", "ippo"), ("door_continuous", "mappo"), ("sidewalk_discrete", "iql"),
-                             ("sidewalk_discrete", "qmix"), ("sidewalk_discrete", "vdn")]
+    grid = [(task, algorithm) for task in ("door_discrete", "sidewalk_discrete") for algorithm in ("iql", "qmix", "vdn")]
+    assert tuned_pairs() == [("door_continuous", "ippo"), ("door_continuous", "mappo"), *grid]
+    for task, algorithm in tuned_pairs():  # the grid's Q-learners take the dueling model, the rest BenchMARL's MLP
+        expected = {"model": "dueling_mlp"} if task.endswith("discrete") else {}
+        assert SidewalkTask[task.upper()].tuned_models(algorithm) == expected, (task, algorithm)
+    assert tuned(SidewalkTask.DOOR_DISCRETE, "qmix") == tuned(SidewalkTask.SIDEWALK_DISCRETE, "qmix")  # the same
+
+
+def tuned(task, algorithm):
+    from omegaconf import OmegaConf
+
+    from sidewalk.interop.benchmarl import TUNED_DIR
+
+    return OmegaConf.to_container(OmegaConf.load(TUNED_DIR / task.name.lower() / f"{algorithm}.yaml"))
 
 
 @pytest.mark.parametrize(("task", "algorithm"), tuned_pairs())
 def test_the_tuned_settings_load_and_apply_in_python_and_on_the_command_line(task, algorithm):
     from benchmarl.algorithms import algorithm_config_registry
-    from benchmarl.hydra_config import load_experiment_config_from_hydra
+    from benchmarl.hydra_config import load_experiment_config_from_hydra, load_model_config_from_hydra
+    from benchmarl.models import model_config_registry
     from benchmarl.utils import _class_from_name
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
@@ -270,8 +291,14 @@ def test_the_tuned_settings_load_and_apply_in_python_and_on_the_command_line(tas
         cfg_default = compose("config", overrides=[f"algorithm={algorithm}", f"task=sidewalk/{task}", "tuned=default"])
     fields = {"experiment": "config", "algorithm": "algorithm_config", "model": "model_config",
               "critic_model": "critic_model_config"}
+    chosen = SidewalkTask[task.upper()].tuned_models(algorithm)  # a model the file chooses: its fields, not the MLP's
+    for section in ("model", "critic_model"):  # the same model from the command line as from Python
+        assert type(configs[fields[section]]) is model_config_registry[chosen.get(section, "mlp")]
+        assert load_model_config_from_hydra(cfg[section]) == configs[fields[section]], section
     changed = 0
     for section, values in tuned.items():
+        if section == "defaults":
+            continue
         for key, value in values.items():
             if section == "task":  # the task's env settings, over its own
                 assert configs["task"].config[key] == {**defaults["task"].config[key], **value}
@@ -280,6 +307,8 @@ def test_the_tuned_settings_load_and_apply_in_python_and_on_the_command_line(tas
             assert cfg[section][key] == value, (section, key)
             value = _class_from_name(value) if key.endswith("class") else value  # torch.nn.ReLU: a class in Python
             assert getattr(configs[fields[section]], key) == value, (section, key)
+            if section in chosen:
+                continue
             changed += getattr(defaults[fields[section]], key) != value
             default = cfg_default[section][key]  # tuned=default: BenchMARL's
             assert (_class_from_name(default) if key.endswith("class") else default) == getattr(
@@ -300,3 +329,127 @@ def test_a_misspelt_tuned_setting_is_an_error_naming_the_valid_ones(tmp_path, mo
     monkeypatch.setattr(benchmarl, "TUNED_DIR", tmp_path)
     with pytest.raises(TypeError, match=r"unknown parameter 'lrr' \(did you mean 'lr'\?\) for experiment in"):
         benchmarl.experiment_configs(SidewalkTask.DOOR_CONTINUOUS, "mappo")
+
+
+def test_a_misspelt_tuned_model_is_an_error_naming_the_valid_ones(tmp_path, monkeypatch):
+    from sidewalk.interop import benchmarl
+
+    (tmp_path / "sidewalk_discrete").mkdir()
+    tuned_file = tmp_path / "sidewalk_discrete" / "iql.yaml"
+    monkeypatch.setattr(benchmarl, "TUNED_DIR", tmp_path)
+    tuned_file.write_text("defaults:\n  - /model/layers/dueling_mpl@model\n  - _self_\n")
+    valid = "cnn, deepsets, dueling_mlp, gnn, gru, lstm, mlp"
+    with pytest.raises(ValueError, match=rf"unknown model 'dueling_mpl' \(did you mean 'dueling_mlp'\?\) for .*iql.yaml; "
+                                         rf"valid: {valid}$"):
+        benchmarl.experiment_configs(SidewalkTask.SIDEWALK_DISCRETE, "iql")
+    # Hydra refuses an override in a file its defaults list reaches through ${task}/${algorithm}: named, not ignored.
+    tuned_file.write_text("defaults:\n  - override /model: layers/dueling_mlp\n")
+    with pytest.raises(ValueError, match=r"defaults entry \{'override /model': 'layers/dueling_mlp'\} is not one a "
+                                         r"tuned file may have; valid: /model/layers/<model>@model, "):
+        benchmarl.experiment_configs(SidewalkTask.SIDEWALK_DISCRETE, "iql")
+
+
+def dueling_model(share_params: bool, input_has_agent_dim: bool = True, centralised: bool = False,
+                  num_cells: tuple[int, ...] = (6,)):
+    """A dueling model of 3 agents, 5 features each (or a state of 7), 4 actions: as BenchMARL builds a Q-network."""
+    from torchrl.data import Categorical, Composite, Unbounded
+
+    from sidewalk.interop.benchmarl import DuelingMlpConfig
+
+    def group(**leaves):
+        return Composite({"agents": Composite(leaves, shape=(3,))})
+
+    config = DuelingMlpConfig.get_from_yaml()
+    config.num_cells, config.hidden = list(num_cells), 8
+    return config.get_model(
+        input_spec=group(observation=Unbounded(shape=(3, 5))) if input_has_agent_dim else Composite(
+            state=Unbounded(shape=(7,))),
+        output_spec=group(action_value=Unbounded(shape=(3, 4))) if not (share_params and centralised) else Composite(
+            action_value=Unbounded(shape=(4,))),
+        agent_group="agents", input_has_agent_dim=input_has_agent_dim, n_agents=3, centralised=centralised,
+        share_params=share_params, device="cpu", action_spec=group(action=Categorical(4, shape=(3,))),
+    )
+
+
+@pytest.mark.parametrize("share_params", [True, False], ids=["shared", "per_agent"])
+@pytest.mark.parametrize("num_cells", [(), (6,)], ids=["no_trunk", "trunk"])
+def test_the_dueling_model_s_q_is_v_plus_a_minus_the_mean_of_a(share_params, num_cells):
+    from tensordict import TensorDict
+
+    torch.manual_seed(0)
+    model = dueling_model(share_params, num_cells=num_cells)
+    observation = torch.linspace(-2.0, 2.0, 2 * 3 * 5).reshape(2, 3, 5)  # 2 worlds, 3 agents, 5 features
+    q = model(TensorDict({"agents": {"observation": observation}}, batch_size=[2]))["agents", "action_value"]
+    assert q.shape == (2, 3, 4)
+    net = model.mlp.get_stateful_net()  # one agent's DuelingMlpNet; its weights are each agent's slice of params
+    for agent in range(3):
+        weights = model.mlp.params if share_params else model.mlp.params[agent]
+        with weights.to_module(net):
+            features = net.trunk(observation[:, agent])
+            value, advantage = net.head.value(features), net.head.advantage(features)
+        assert value.shape == (2, 1) and advantage.shape == (2, 4)
+        torch.testing.assert_close(q[:, agent], value + advantage - advantage.mean(-1, keepdim=True))
+    assert not torch.allclose(q[:, 0], q[:, 1])  # the agents' observations differ, so do their values
+
+
+def test_the_dueling_model_has_one_set_of_weights_shared_or_one_per_agent():
+    from tensordict import TensorDict
+
+    from sidewalk.interop.benchmarl.models import DuelingMlpNet
+
+    shared, per_agent = dueling_model(share_params=True), dueling_model(share_params=False)
+    one_set = {name: p.shape for name, p in DuelingMlpNet(5, 4, [6], 8, "cpu").named_parameters()}
+    assert {name: p.shape for name, p in shared.mlp.params.flatten_keys(".").items()} == one_set
+    assert {name: p.shape for name, p in per_agent.mlp.params.flatten_keys(".").items()} == {
+        name: (3, *shape) for name, shape in one_set.items()}
+    assert sum(p.numel() for p in per_agent.parameters()) == 3 * sum(p.numel() for p in shared.parameters())
+    # A centralised model on the state (BenchMARL's critics and mixers): one network, or one per agent, as its MLP.
+    state = TensorDict({"state": torch.ones(2, 7)}, batch_size=[2])
+    for share_params, networks, shape in [(True, 1, (2, 4)), (False, 3, (2, 3, 4))]:
+        model = dueling_model(share_params, input_has_agent_dim=False, centralised=True)
+        assert len(model.mlp) == networks and all(isinstance(net, DuelingMlpNet) for net in model.mlp)
+        assert model(state.clone())[model.out_key].shape == shape
+    # Centralised over the agents' observations, shared: BenchMARL's one output for the group, without the agent axis.
+    model = dueling_model(True, centralised=True)
+    observation = TensorDict({"agents": {"observation": torch.ones(2, 3, 5)}}, batch_size=[2])
+    assert model(observation)["action_value"].shape == (2, 4)
+
+
+@pytest.mark.parametrize("algorithm", ["iql", "qmix"])
+def test_benchmarl_trains_the_tuned_dueling_model_two_iterations_from_python(algorithm, tmp_path):
+    from benchmarl.experiment import Experiment
+
+    from sidewalk.interop.benchmarl import experiment_configs
+    from sidewalk.interop.benchmarl.models import DuelingMlp
+
+    torch.manual_seed(0)
+    configs = experiment_configs(SidewalkTask.SIDEWALK_DISCRETE, algorithm)
+    config = configs["config"]  # the tuned settings at a small budget: 2 batches of 64 frames from 4 worlds
+    config.max_n_iters, config.max_n_frames = 2, None
+    config.loggers, config.render, config.save_folder = ["csv"], False, str(tmp_path)
+    config.off_policy_collected_frames_per_batch, config.off_policy_n_envs_per_worker = 64, 4
+    config.off_policy_n_optimizer_steps, config.off_policy_train_batch_size = 2, 16
+    config.evaluation_interval, config.evaluation_episodes = 64, 2
+    experiment = Experiment(**configs, seed=0)
+    assert any(isinstance(module, DuelingMlp) for module in experiment.policy.modules())
+    before = [p.detach().clone() for p in experiment.policy.parameters()]
+    experiment.run()
+    assert experiment.n_iters_performed == 2 and experiment.total_frames == 128
+    assert any(not torch.equal(a, b) for a, b in zip(before, experiment.policy.parameters(), strict=True))
+
+
+@pytest.mark.parametrize("algorithm", ["iql", "qmix"])
+def test_the_guide_s_command_trains_the_tuned_dueling_model_two_iterations(algorithm, tmp_path):
+    # As the guide writes it but for the pair and two batches of the tuned 2,048 frames, one optimiser step each.
+    command = guide_command()
+    command[command.index("algorithm=mappo")] = f"algorithm={algorithm}"
+    command[command.index("task=sidewalk/door_continuous")] = "task=sidewalk/sidewalk_discrete"
+    out = subprocess.run(
+        [sys.executable, *command[1:], "experiment.max_n_frames=4096", "experiment.off_policy_n_optimizer_steps=1"],
+        cwd=tmp_path, check=False, capture_output=True, text=True, timeout=300,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    rows = list(csv.reader(next(tmp_path.rglob("counters_total_frames.csv")).open()))
+    assert [float(frames) for _, frames in rows] == [2048, 4096]
+    # BenchMARL names a run's folder <algorithm>_<task>_<model class>_...: the tuned file's model ran.
+    assert [path.name for path in tmp_path.rglob(f"{algorithm}_sidewalk_discrete_duelingmlp_*") if path.is_dir()]

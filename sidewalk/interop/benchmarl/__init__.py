@@ -26,13 +26,15 @@ infos; the root ``state`` goes to centralised critics and mixers. Grid images ar
 
 Importing this module makes BenchMARL 1.5 work with TorchRL 0.14 (``sidewalk._torchrl.adapt_benchmarl``: the
 collector's old name, and no action-shape check in its Q-value modules) and registers the tasks with BenchMARL's
-command line.
+command line, and this package's models (``models.MODELS``: the dueling Q-value model, ``model=layers/dueling_mlp``)
+with its model registry.
 """
 
 from __future__ import annotations
 
 import copy
 import importlib.util
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -43,19 +45,25 @@ adapt_benchmarl()  # before this module imports BenchMARL's names
 
 import torch
 from benchmarl import environments as _benchmarl_environments
+from benchmarl import models as _benchmarl_models
 from benchmarl.environments.common import Task, TaskClass
 from torchrl.data import Composite
 from torchrl.envs import DTypeCastTransform, EnvBase, ObservationNorm, PermuteTransform, Transform
 
 from sidewalk.envs import CORE_ENVS
 from sidewalk.envs.rewards import RewardParams
+from sidewalk.interop.benchmarl.models import MODELS, DuelingMlpConfig
 from sidewalk.schema import SELFPLAY_PROGRESS
 from sidewalk.views.selfplay import SelfPlayView
 
 ENV_NAME = "sidewalk"
 CONFIG_DIR = Path(__file__).parent / "conf"  # BenchMARL's config layout: conf/task/sidewalk/<task>.yaml
 TUNED_DIR = CONFIG_DIR / "tuned" / ENV_NAME  # tuned/sidewalk/<task>/<algorithm>.yaml, as BenchMARL's fine_tuned/
-TUNED_SECTIONS = ("task", "experiment", "algorithm", "model", "critic_model")
+TUNED_SECTIONS = ("defaults", "task", "experiment", "algorithm", "model", "critic_model")
+# A tuned file's defaults list may choose a section's model (Hydra merges that model's YAML over layers/mlp's, then
+# the file's section over both): BenchMARL's command line composes it, experiment_configs reads it here.
+MODEL_CHOICE = re.compile(r"/model/layers/(?P<name>\w+)@(?P<section>model|critic_model)")
+MODEL_CHOICE_FORMS = ("/model/layers/<model>@model", "/model/layers/<model>@critic_model", "_self_")
 TASK_CONFIG_KEYS = ("domain", "noise", "env", "reward", "state")
 OBSERVATION_KEY = ("agents", "observation")
 
@@ -173,16 +181,23 @@ class SidewalkTask(Task):
         """The BenchMARL algorithms this package ships tuned settings for on this task."""
         return sorted(path.stem for path in (TUNED_DIR / self.name.lower()).glob("*.yaml"))
 
+    def tuned_models(self, algorithm: str) -> dict[str, str]:
+        """The models this package's tuned settings for ``algorithm`` on this task choose, by section
+        (``{"model": "dueling_mlp"}``); empty where they choose none or there are none."""
+        path = TUNED_DIR / self.name.lower() / f"{algorithm}.yaml"
+        return _chosen_models(_read_yaml(path).get("defaults") or [], str(path)) if path.exists() else {}
+
 
 def experiment_configs(task: SidewalkTask, algorithm: str, tuned: bool = True) -> dict[str, Any]:
     """``Experiment``'s arguments but the seed (``task``, ``algorithm_config``, ``model_config``,
     ``critic_model_config``, ``config``) for BenchMARL's ``algorithm`` on ``task``: BenchMARL's defaults (its
     ``base_experiment.yaml``, the algorithm's YAML, ``layers/mlp``) with this package's tuned settings for the pair
-    (``conf/tuned/sidewalk/<task>/<algorithm>.yaml``) over them, where it has some and ``tuned``. A setting that is not
-    a field of BenchMARL's config is an error naming the valid ones."""
+    (``conf/tuned/sidewalk/<task>/<algorithm>.yaml``) over them, where it has some and ``tuned``. A tuned file's
+    ``defaults`` list may choose another model (``- /model/layers/dueling_mlp@model``), whose YAML its ``model``
+    section then goes over. A setting that is not a field of BenchMARL's config, or a model it does not know, is an
+    error naming the valid ones."""
     from benchmarl.algorithms import algorithm_config_registry
     from benchmarl.experiment import ExperimentConfig
-    from benchmarl.models import MlpConfig
 
     from sidewalk._checks import check_keys, replace_checked
 
@@ -195,17 +210,36 @@ def experiment_configs(task: SidewalkTask, algorithm: str, tuned: bool = True) -
         task_class.config[key] = {**task_class.config[key], **value} if isinstance(value, dict) else value
     make_core(task_class.config, 1, 0, "cpu")  # a bad task setting fails here, before any compute
     owner = f"{path.name} of {task.name.lower()}"
-    models = {section: _model_classes(settings.get(section) or {}) for section in ("model", "critic_model")}
+    chosen = _chosen_models(settings.get("defaults") or [], str(path))
+    models = {}
+    for section in ("model", "critic_model"):
+        name = chosen.get(section, "mlp")
+        check_keys(str(path), [name], sorted(_benchmarl_models.model_config_registry), kind="model")
+        models[section] = replace_checked(_benchmarl_models.model_config_registry[name].get_from_yaml(),
+                                          _model_classes(settings.get(section) or {}), f"{section} in {owner}")
     return {
         "task": task_class,
         "algorithm_config": replace_checked(algorithm_config_registry[algorithm].get_from_yaml(),
                                             settings.get("algorithm") or {}, f"algorithm in {owner}"),
-        "model_config": replace_checked(MlpConfig.get_from_yaml(), models["model"], f"model in {owner}"),
-        "critic_model_config": replace_checked(MlpConfig.get_from_yaml(), models["critic_model"],
-                                               f"critic_model in {owner}"),
+        "model_config": models["model"],
+        "critic_model_config": models["critic_model"],
         "config": replace_checked(ExperimentConfig.get_from_yaml(), settings.get("experiment") or {},
                                   f"experiment in {owner}"),
     }
+
+
+def _chosen_models(defaults: list[Any], owner: str) -> dict[str, str]:
+    """The model each section of a tuned file's ``defaults`` list chooses (``{"model": "dueling_mlp"}``); an entry
+    of another form is an error naming the forms this package reads (``MODEL_CHOICE_FORMS``)."""
+    chosen = {}
+    for entry in defaults:
+        match = MODEL_CHOICE.fullmatch(entry) if isinstance(entry, str) else None
+        if match:
+            chosen[match["section"]] = match["name"]
+        elif entry != "_self_":
+            raise ValueError(f"{owner}: defaults entry {entry!r} is not one a tuned file may have; valid: "
+                             f"{', '.join(MODEL_CHOICE_FORMS)}")
+    return chosen
 
 
 def _model_classes(model: dict[str, Any]) -> dict[str, Any]:
@@ -224,7 +258,9 @@ def _read_yaml(path: Path) -> dict[str, Any]:
 
 
 def register() -> None:
-    """Make the tasks known to BenchMARL's command line (``task=sidewalk/<task>``) and config loaders; idempotent."""
+    """Make the tasks known to BenchMARL's command line (``task=sidewalk/<task>``) and config loaders, and this
+    package's models to its model registry (``model=layers/<name>``); idempotent."""
+    _benchmarl_models.model_config_registry.update(MODELS)
     if SidewalkTask not in _benchmarl_environments.tasks:
         _benchmarl_environments.tasks.append(SidewalkTask)
     for task in SidewalkTask:
@@ -234,5 +270,6 @@ def register() -> None:
 register()
 
 __all__ = [
-    "CONFIG_DIR", "TUNED_DIR", "SidewalkTask", "SidewalkTaskClass", "experiment_configs", "make_core", "register",
+    "CONFIG_DIR", "TUNED_DIR", "DuelingMlpConfig", "SidewalkTask", "SidewalkTaskClass", "experiment_configs",
+    "make_core", "register",
 ]
