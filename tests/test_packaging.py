@@ -120,6 +120,7 @@ def test_the_distribution_name_is_free_of_other_projects_and_every_install_line_
 def test_the_wheel_carries_every_config_and_runner(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     configs = {f"sidewalk/conf/{path.relative_to(ROOT / 'conf')}" for path in (ROOT / "conf").rglob("*.yaml")}
+    configs |= {str(path.relative_to(ROOT)) for path in (ROOT / "sidewalk").rglob("*.yaml")}  # BenchMARL's tasks, ...
     runners = {f"sidewalk/runners/{path.name}" for path in (ROOT / "runners").glob("*.py")}
     packages = {f"{path.parent.relative_to(ROOT)}/__init__.py" for path in (ROOT / "sidewalk").rglob("__init__.py")}
     assert configs and configs <= names, sorted(configs - names)
