@@ -168,6 +168,27 @@ def test_the_comparison_table_writes_a_row_per_run_and_skips_finished_runs(tmp_p
     assert benchmarl_tasks.parse_options(["--bm-no-state"])["state"] is False
 
 
+def test_the_comparison_table_keeps_runs_of_another_model_apart(tmp_path, monkeypatch):
+    """A tuned grid row made with BenchMARL's MLP (before the dueling model; no model column) is not today's tuned
+    run, which chooses the dueling model: that run trains, and both rows stay."""
+    from sidewalk.bench import benchmarl_tasks
+
+    old = {"algorithm": "iql", "task": "sidewalk_discrete", "observation": "vector", "state": True,
+           "protocol": "perturbed", "config": "tuned", "seed": 0, "frames": 245_760, "wall_s": 1.0, "team_success": 0.9,
+           "deadlock": 0.1, "agent_success": 0.9, "team_success_sampled": 0.9, "distinct_episodes": 78}
+    pd.DataFrame([old]).to_csv(tmp_path / "benchmarl.csv", index=False)
+    trained = []
+
+    def fake_training(algorithm, task, seed, *args):
+        trained.append((algorithm, task, seed))
+        return {**old, "model": "dueling_mlp", "team_success": 1.0}
+
+    monkeypatch.setattr(benchmarl_tasks, "train_and_evaluate", fake_training)
+    rows = benchmarl_tasks.run(algorithms=["iql"], tasks=["sidewalk_discrete"], seeds=[0], out=str(tmp_path))
+    assert trained == [("iql", "sidewalk_discrete", 0)]
+    assert sorted((row["model"], row["team_success"]) for row in rows) == [("dueling_mlp", 1.0), ("mlp", 0.9)]
+
+
 def test_the_comparison_table_keeps_runs_without_the_state_apart(tmp_path, monkeypatch):
     from sidewalk.bench import benchmarl_tasks
 
@@ -188,7 +209,7 @@ def test_the_comparison_table_keeps_runs_without_the_state_apart(tmp_path, monke
                                    out=str(tmp_path), eval_episodes=4, state=state)
     assert seen == [False]
     assert sorted((row["state"], row["team_success"]) for row in rows) == [(False, 0.5), (True, 1.0)]
-    assert "| mappo | zipper_continuous | vector | no | perturbed | default | 1 |" in benchmarl_tasks.format_rows(rows)
+    assert "| mappo | zipper_continuous | vector | no | perturbed | default | mlp | 1 |" in benchmarl_tasks.format_rows(rows)
 
 
 def test_the_comparison_table_keeps_runs_of_the_paper_s_fixed_starts_apart(tmp_path, monkeypatch):
@@ -210,8 +231,8 @@ def test_the_comparison_table_keeps_runs_of_the_paper_s_fixed_starts_apart(tmp_p
                                out=str(tmp_path), eval_episodes=4)
     assert trained == ["zipper_continuous"]  # the task's worlds are perturbed now: a new row
     table = benchmarl_tasks.format_rows(rows)
-    assert "| nominal | default | 1 | 6,000 | 1 | 1.00 (1.00) | 1.00 | 0.00 | – |" in table
-    assert "| perturbed | default | 1 | 6,000 | 1 | 0.50 (0.50) | 1.00 | 0.00 | 200 |" in table
+    assert "| nominal | default | mlp | 1 | 6,000 | 1 | 1.00 (1.00) | 1.00 | 0.00 | – |" in table
+    assert "| perturbed | default | mlp | 1 | 6,000 | 1 | 0.50 (0.50) | 1.00 | 0.00 | 200 |" in table
 
 
 def test_the_command_line_s_help_names_the_tasks_and_the_tuned_settings(capsys):

@@ -38,8 +38,8 @@ ALGORITHM_CONFIGS = {
     "mappo": "MappoConfig", "ippo": "IppoConfig", "masac": "MasacConfig", "isac": "IsacConfig",
     "maddpg": "MaddpgConfig", "iddpg": "IddpgConfig", "iql": "IqlConfig", "vdn": "VdnConfig", "qmix": "QmixConfig",
 }
-COLUMNS = ["algorithm", "task", "observation", "state", "protocol", "config", "seed", "frames", "wall_s", "team_success",
-           "deadlock", "agent_success", "team_success_sampled", "distinct_episodes"]
+COLUMNS = ["algorithm", "task", "observation", "state", "protocol", "config", "model", "seed", "frames", "wall_s",
+           "team_success", "deadlock", "agent_success", "team_success_sampled", "distinct_episodes"]
 JITTER_KEYS = ("start_jitter_rows", "goal_jitter_rows", "start_jitter_cells", "goal_jitter_cells", "start_jitter_m",
                "goal_jitter_m", "heading_jitter_rad")
 
@@ -124,6 +124,14 @@ def run_settings(algorithm: str, task_name: str, config: str, frames: int | None
     return settings
 
 
+def model_of(settings: dict[str, Any]) -> str:
+    """The name BenchMARL's model registry gives the run's (agents') model: ``mlp``, ``cnn``, ``dueling_mlp``, ..."""
+    from benchmarl.models import model_config_registry
+
+    names = {config_class: name for name, config_class in model_config_registry.items()}
+    return names.get(type(settings["model_config"]), type(settings["model_config"]).__name__)
+
+
 def observation_of(task_config: dict[str, Any]) -> str:
     return task_config["env"].get("observation", "image") if task_config["domain"] == "discrete" else "vector"
 
@@ -159,7 +167,8 @@ def train_and_evaluate(algorithm: str, task_name: str, seed: int, frames: int | 
     name = f"{algorithm}_{task_name}_{observation}{'' if state else '_nostate'}_{config_name}_seed{seed}.pt"
     torch.save(experiment.policy.state_dict(), out / "runs" / name)
     return {"algorithm": algorithm, "task": task_name, "observation": observation, "state": state,
-            "protocol": task_protocol(task.config), "config": config_name, "seed": seed, "frames": experiment.total_frames,
+            "protocol": task_protocol(task.config), "config": config_name, "model": model_of(settings), "seed": seed,
+            "frames": experiment.total_frames,
             "wall_s": round(wall_s, 1), "team_success": metrics["team/success_rate"],
             "deadlock": metrics["deadlock_rate"], "agent_success": metrics["success_rate"],
             "team_success_sampled": sampled["team/success_rate"], "distinct_episodes": metrics["distinct_episodes"]}
@@ -196,7 +205,8 @@ def run(algorithms: list[str] | None = None, tasks: list[str] | None = None, see
         observation, budget = observation_of(settings["task"].config), settings["config"].max_n_frames
         same = (table.algorithm == algorithm) & (table.task == task) & (table.seed == seed) & (
             table.observation == observation) & (table.state == state) & (
-            table.protocol == task_protocol(settings["task"].config)) & (table.config == applied)
+            table.protocol == task_protocol(settings["task"].config)) & (table.config == applied) & (
+            table.model == model_of(settings))
         if (table[same].frames >= budget).any():
             continue
         print(f"benchmarl: {algorithm} on sidewalk/{task} ({observation}{'' if state else ', no state'}, {applied} "
@@ -210,9 +220,11 @@ def run(algorithms: list[str] | None = None, tasks: list[str] | None = None, see
 
 def with_defaults(table: pd.DataFrame) -> pd.DataFrame:
     """Rows made before a column existed read as what they were: ``nominal`` before the protocol, BenchMARL's
-    ``default`` settings before the tuned configs."""
+    ``default`` settings before the tuned configs, BenchMARL's MLP (CNN on images) before the dueling model."""
     for column, old in (("protocol", "nominal"), ("config", "default")):
         table[column] = table[column].fillna(old) if column in table else old
+    models = table["observation"].map({"image": "cnn"}).fillna("mlp") if len(table) else pd.Series(dtype=str)
+    table["model"] = table["model"].fillna(models) if "model" in table else models
     return table
 
 
@@ -223,15 +235,17 @@ def format_rows(rows: list[dict[str, Any]]) -> str:
     if not rows:
         return "(no runs)"
     table = with_defaults(pd.DataFrame(rows))
-    header = ("algorithm", "task", "observation", "state", "protocol", "config", "seeds", "frames", "wall-clock (s, mean)",
+    header = ("algorithm", "task", "observation", "state", "protocol", "config", "model", "seeds", "frames",
+              "wall-clock (s, mean)",
               "team success, greedy (per seed)", "team success, sampled (mean)", "deadlock (mean)",
               "distinct episodes")
     lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
-    setting = ["algorithm", "task", "observation", "state", "protocol", "config"]
-    for (algorithm, task, observation, state, protocol, config), group in table.groupby(setting, sort=False):
+    setting = ["algorithm", "task", "observation", "state", "protocol", "config", "model"]
+    for (algorithm, task, observation, state, protocol, config, model), group in table.groupby(setting, sort=False):
         per_seed = ", ".join(f"{value:.2f}" for value in group.sort_values("seed").team_success)
         distinct = distinct_range(group.get("distinct_episodes", []))
         lines.append(f"| {algorithm} | {task} | {observation} | {'yes' if state else 'no'} | {protocol} | {config} "
+                     f"| {model} "
                      f"| {len(group)} | {int(group.frames.mean()):,} | {group.wall_s.mean():.0f} "
                      f"| {group.team_success.mean():.2f} ({per_seed}) "
                      f"| {group.team_success_sampled.mean():.2f} | {group.deadlock.mean():.2f} | {distinct} |")
