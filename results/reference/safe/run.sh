@@ -11,7 +11,8 @@
 # the same learner shielded (shield=true) and PPO-Lagrangian (algo=ppo_lagrangian at its default cost limit). Budgets:
 # DQN at 200 iterations (102,400 frames; its default is 300), as the reference before; TRPO at 200 iterations
 # (409,600 frames); PPO-Lagrangian at the frames of the learner it is compared with: 50 iterations in the grid
-# (102,400 frames, minibatches of 512 images), 200 in the continuous world.
+# (102,400 frames, at its own minibatches of 64 images: at 512, an eighth of the gradient steps, it walked its start
+# row; results/who-yields/README.md), 200 in the continuous world.
 #
 # A sweep that finished is not run again (a marker in the output folder), so after a kill run the same command: the
 # unfinished sweeps start over. Then copy the runs' small files into results/reference/safe/runs/ and rebuild its
@@ -51,7 +52,7 @@ mkdir -p "$root"
   iterations=200) & lane=$!
 status=0
 sweep discrete_ppo_lagrangian discrete +experiment=safe_discrete algo=ppo_lagrangian shield=false iterations=50 \
-  eval_every=10 algo.minibatch_size=512 || status=1
+  eval_every=10 || status=1
 sweep discrete_dqn discrete +experiment=safe_discrete algo=dqn iterations=200 shield=false,true || status=1
 sweep continuous_trpo continuous +experiment=safe_continuous algo=trpo iterations=200 shield=false,true || status=1
 wait "$lane" || status=1
