@@ -35,8 +35,8 @@ import numpy as np
 from sidewalk._minari import jax_free_collector_class
 from sidewalk.envs import INFO_KEYS
 from sidewalk.interop.gymnasium import CENTRALIZED, ENV_IDS, SidewalkGymEnv
-from sidewalk.opponents.base import opponent_config
 from sidewalk.later_keys import LATER_ENV_KEYS
+from sidewalk.opponents.base import opponent_config
 from sidewalk.version import __version__
 from sidewalk.world import World
 
