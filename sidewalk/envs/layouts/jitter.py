@@ -22,6 +22,7 @@ The draws come from the env's generator (per replica), so one seed repeats them 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -166,6 +167,12 @@ class JitteredGridLayout:
     def blocked_mask(self, device: torch.device) -> torch.Tensor:
         return self.nominal.blocked_mask(device)
 
+    @functools.cached_property
+    def _cell_choices(self) -> tuple[list[list[tuple[int, int]]], list[list[tuple[int, int]]]]:
+        """The free cells each start and each goal may move to under the cell bounds, found once, not every reset."""
+        return (free_cells_within(self.nominal, self.nominal.starts, self.start_jitter_cells),
+                free_cells_within(self.nominal, self.nominal.goals, self.goal_jitter_cells))
+
     def sample(self, n: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """Starts and goals of ``n`` worlds, int64 (n, N, 2), drawn from ``generator``."""
         nominal_starts, nominal_goals = self.nominal.sample(n, generator)
@@ -180,12 +187,11 @@ class JitteredGridLayout:
         starts[..., 0] += start_rows
         goals[..., 0] += goal_rows
         # Cell moves draw nothing at 0, so the row-jittered worlds of a seed stay the worlds they were.
+        start_choices, goal_choices = self._cell_choices
         if self.start_jitter_cells:
-            choices = free_cells_within(self.nominal, self.nominal.starts, self.start_jitter_cells)
-            starts = _draw_cells(choices, (CANDIDATES, n), generator)
+            starts = _draw_cells(start_choices, (CANDIDATES, n), generator)
         if self.goal_jitter_cells:
-            choices = free_cells_within(self.nominal, self.nominal.goals, self.goal_jitter_cells)
-            goals = _draw_cells(choices, (CANDIDATES, n), generator)
+            goals = _draw_cells(goal_choices, (CANDIDATES, n), generator)
         start_cell = starts[..., 0] * self.cols + starts[..., 1]
         goal_cell = goals[..., 0] * self.cols + goals[..., 1]
         pair = ~torch.eye(n_agents, dtype=torch.bool, device=generator.device)
