@@ -40,16 +40,16 @@ ALGORITHM_CONFIGS = {
 }
 COLUMNS = ["algorithm", "task", "observation", "state", "protocol", "config", "model", "seed", "frames", "wall_s",
            "team_success", "deadlock", "agent_success", "team_success_sampled", "distinct_episodes"]
-JITTER_KEYS = ("start_jitter_rows", "goal_jitter_rows", "start_jitter_cells", "goal_jitter_cells", "start_jitter_m",
-               "goal_jitter_m", "heading_jitter_rad")
 
 
 def task_protocol(task_config: dict[str, Any]) -> str:
     """How a task's worlds differ (docs/guide/evaluation.md): ``perturbed`` where its env moves starts or goals (the
     tasks' configs give the perturbed protocol's bounds since 2026-11-28), else ``nominal``. Rows of a table made
     before have no protocol: they were nominal."""
+    from sidewalk.schema import PROTOCOL_ENV_FIELDS  # the env parameters a protocol sets, each domain's
+
     env = task_config.get("env") or {}
-    return "perturbed" if any(env.get(key) for key in JITTER_KEYS) else "nominal"
+    return "perturbed" if any(env.get(key) for fields in PROTOCOL_ENV_FIELDS.values() for key in fields) else "nominal"
 
 
 def parse_options(argv: list[str]) -> dict[str, Any]:
