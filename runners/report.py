@@ -8,9 +8,9 @@
 Writes report.md (tables, with Safety Gym's final return, final cost and training cost rate where runs record
 costs; figures embedded, the learner's cumulative training cost among them; the cross-play matrix of any folder
 with a crossplay.csv under the paths, see runners/crossplay.py), report.csv (every number in report.md),
-curves.csv (every plotted point), marl_eval.json (the runs in marl-eval's layout, as BenchMARL writes them, with
-each run's absolute metric) and figures/ into --out (default: report/ inside the single path given, or
-inside the paths' common folder). Unusable run folders are listed in report.md and skipped. Progress goes to
+curves.csv (every plotted point), marl_eval/*.json (the runs as marl-eval files laid out as BenchMARL writes its
+runs, one per set that marl-eval loads whole; see sidewalk.report.marl_eval) and figures/ into --out (default:
+report/ inside the single path given, or inside the paths' common folder). Unusable run folders are listed in report.md and skipped. Progress goes to
 stderr. Exit status: 0, or 1 when no run could be used, 2 for bad arguments. See the sidewalk.report package.
 """
 

@@ -178,15 +178,18 @@ def peer_keys(condition: Condition, conditions: Sequence[Condition]) -> list[str
     return varying_keys(peers, ignore=("env.domain", "algo.name", "opponent.name"))
 
 
+def label(condition: Condition, conditions: Sequence[Condition]) -> str:
+    """``condition``'s domain, algorithm and opponent, plus what sets it apart from its peers among ``conditions``."""
+    head = f"{condition.domain}: {condition.algo.upper()}" + (
+        " centralized" if condition.opponent == "centralized" else f" vs {condition.opponent}"
+    )
+    rest = describe(condition, peer_keys(condition, conditions))
+    return f"{head}, {rest}" if rest else head
+
+
 def _label(conditions: Sequence[Condition]) -> None:
-    """Label each condition by domain, algorithm and opponent, plus what sets it apart from its peers."""
     for condition in conditions:
-        extra = peer_keys(condition, conditions)
-        head = f"{condition.domain}: {condition.algo.upper()}" + (
-            " centralized" if condition.opponent == "centralized" else f" vs {condition.opponent}"
-        )
-        rest = describe(condition, extra)
-        condition.label = f"{head}, {rest}" if rest else head
+        condition.label = label(condition, conditions)
 
 
 # ---- the paper's figures ----------------------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """``report.md`` assembled from its sections, and the report's files written: ``report.md``, ``report.csv`` (every
-number in it), ``curves.csv`` (every plotted point) and ``marl_eval.json`` (the runs in marl-eval's layout,
-``sidewalk.report.marl_eval``); the figures come from ``sidewalk.report.figures`` and, for a cross-play matrix found
-under the paths, ``sidewalk.report.crossplay``."""
+number in it), ``curves.csv`` (every plotted point) and ``marl_eval/*.json`` (the runs as marl-eval files, one per
+comparable set, ``sidewalk.report.marl_eval``); the figures come from ``sidewalk.report.figures`` and, for a
+cross-play matrix found under the paths, ``sidewalk.report.crossplay``."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ from sidewalk.report.conditions import (
 )
 from sidewalk.report.crossplay import crossplay_sections, find_crossplay
 from sidewalk.report.figures import family_sections, paper_figure_section, trajectory_section
-from sidewalk.report.marl_eval import write_marl_eval
+from sidewalk.report.marl_eval import MarlEvalSet, write_marl_eval
 from sidewalk.report.runs import (
     Run,
     RunFolderError,
@@ -134,9 +134,9 @@ def write_report(
     md += family_sections(conditions, settings, figures_dir, figures, numbers, curves_rows)
     md += crossplay_sections(crossplay, figures_dir, out, figures, numbers)
     md += _statistics_section(settings, safety=any(records_safety(c) for c in conditions))
+    md += _marl_eval_section(write_marl_eval(conditions, out), out)
 
     report_md = _write_files(out, md, numbers, curves_rows)
-    write_marl_eval(conditions, out)
     log.info("wrote %s (%d figure(s))", report_md, len(figures))
     return ReportResult(out, report_md, figures, skipped, notes, conditions, crossplay)
 
@@ -258,6 +258,32 @@ def _skipped_section(skipped: Sequence[Skipped]) -> list[str]:
     md += [
         f"| `{item.path}` | {item.reason} |" for item in skipped
     ]  # absolute: the folder must be found to fix it
+    return md + [""]
+
+
+def _marl_eval_section(written: Sequence[tuple[Path, MarlEvalSet]], out: Path) -> list[str]:
+    """Where the runs are as marl-eval files, and which conditions each file holds."""
+    if not written:
+        return []
+    md = [
+        "## marl-eval files",
+        "",
+        ("The runs as marl-eval files, laid out as BenchMARL writes its runs: one file per set that marl-eval loads whole "
+        "(the same algorithms in every task, the same seeds and evaluations in every run). Each metric is a "
+        "one-element list with the evaluation's `episodes` and `distinct_episodes` beside it; `absolute_metrics` is "
+        "the best policy re-evaluated on ten times the episodes, where BenchMARL's is a maximum over episodes "
+        "(`sidewalk.report.marl_eval`, docs/guide/evaluation.md)."),
+        "",
+        "| file | tasks | conditions | seeds | evaluations | frames |",
+        "| --- | --- | --- | --- | ---: | ---: |",
+    ]
+    for path, marl_set in written:
+        relative = path.relative_to(out).as_posix()
+        md.append(
+            f"| [`{relative}`]({relative}) | {', '.join(marl_set.tasks)} | "
+            f"{', '.join(c.ident for c in marl_set.conditions)} | {', '.join(map(str, marl_set.seeds))} | "
+            f"{len(marl_set.frames)} | {marl_set.frames[-1] if marl_set.frames else 0} |"
+        )
     return md + [""]
 
 
