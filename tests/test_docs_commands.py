@@ -92,6 +92,8 @@ NOT_RUN = {
         ("installs the package", "tests/test_packaging.py builds and installs it into a fresh venv"),
     "pip install -e '.[dev]' -c constraints.txt": ("installs the package", "tests/test_packaging.py"),
     "pip install --no-deps benchmarl==1.5.2": ("installs BenchMARL", "tests/test_benchmarl.py (skips without it)"),
+    "pip install --no-deps benchmarl==1.5.2 id-marl-eval==0.0.4 colorama==0.4.6":
+        ("installs BenchMARL and marl-eval", "tests/test_benchmarl.py, tests/test_marl_eval.py"),
     "python -m pytest": ("the suite itself", "this suite"),
     "python -m sphinx -b html docs build/docs":
         ("the site's build (a minute)", "tests/test_docs.py::test_the_site_builds_without_warnings_or_optional_packages"),
@@ -402,6 +404,16 @@ def test_every_command_runs_or_is_listed_with_its_reason() -> None:
         assert not stale, f"a command no page shows: {stale}"
     for command in shown - set(NOT_RUN):
         command_steps(command, "check")  # a command the test cannot run fails here, naming itself
+
+
+def test_ci_runs_the_readme_s_test_command_as_the_pages_show_it() -> None:
+    """.ci/run's last line is the README's second command, and the site's front page shows the same (before its
+    comment): an install the tests need (BenchMARL, marl-eval) is in all three or in none."""
+    readme = FENCE.search((ROOT / "README.md").read_text())["body"].splitlines()[1]
+    ci = (ROOT / ".ci" / "run").read_text().strip().splitlines()[-1]
+    index = next(line for line in (ROOT / "docs" / "index.md").read_text().splitlines() if "python -m pytest" in line)
+    assert ci == readme
+    assert shlex.split(index, comments=True) == shlex.split(readme)
 
 
 def test_the_commands_wrote_what_they_promise(outcomes) -> None:

@@ -1,5 +1,6 @@
 """The evaluation protocol: perturbed starts, goals and headings drawn within their bounds, the protocol in the config
-and the run folder, the Dijkstra agent's tie-breaks (the "sidewalk salsa"), the absolute metric and the marl-eval file.
+and the run folder, the Dijkstra agent's tie-breaks (the "sidewalk salsa") and the absolute metric (the marl-eval files
+that carry it: tests/test_marl_eval.py).
 """
 
 from __future__ import annotations
@@ -268,37 +269,3 @@ def test_random_tie_breaks_choose_only_among_the_cheapest_moves_and_repeat_for_a
     first = DijkstraOpponent(env, controlled=(1,), tie_break="random").act(state, goal, done)
     env.set_seed(7)
     assert torch.equal(first, DijkstraOpponent(env, controlled=(1,), tie_break="random").act(state, goal, done))
-
-
-# ---- marl-eval's layout --------------------------------------------------------------------------------------------
-
-
-def test_the_report_writes_the_runs_in_marl_eval_s_layout(tmp_path):
-    """marl-eval (id-marl-eval 0.0.4) pins pandas 1.4.4, which cannot sit beside our pins, so its loader cannot run
-    here: the file is checked against what its ``data_process_pipeline`` and ``DiagnoseData`` read."""
-    from sidewalk.report.document import write_report
-    from sidewalk.report.tables import Settings
-
-    runs = tmp_path / "sweep"
-    for seed in (0, 1):
-        train(runs / str(seed), f"seed={seed}", "iterations=2", "eval_every=1", "eval_episodes=32", "num_envs=8",
-              "algo.frames_per_batch=16", "algo.learning_starts=0", "algo.batch_size=16", "logger=none")
-    write_report([runs], tmp_path / "report", Settings(n_resamples=200, trajectory_episodes=0))
-    data = json.loads((tmp_path / "report" / "marl_eval.json").read_text())
-    assert list(data) == ["sidewalk"] and list(data["sidewalk"]) == ["sidewalk_discrete"]
-    (algorithm, algorithm_runs), = data["sidewalk"]["sidewalk_discrete"].items()
-    assert "," not in algorithm  # marl-eval refuses commas in algorithm names
-    assert sorted(algorithm_runs) == ["run_0", "run_1"]
-    for seed, run in enumerate(algorithm_runs.values()):
-        summary = json.loads((runs / str(seed) / "summary.json").read_text())
-        assert sorted(run) == ["absolute_metrics", "step_0", "step_1"]  # the same steps in every run
-        for step, frames in (("step_0", 16), ("step_1", 32)):
-            assert run[step]["step_count"] == frames
-            assert sorted(run[step]) == ["collision_rate", "return", "step_count", "success_rate"]
-            assert len(run[step]["success_rate"]) == 32 and set(run[step]["success_rate"]) <= {0, 1}
-        final = run["step_1"]
-        assert sum(final["success_rate"]) / 32 == summary["ego/success_rate"]  # the rate's episodes, exactly
-        assert final["return"] == [pytest.approx(summary["ego/return"])]
-        absolute = run["absolute_metrics"]
-        assert len(absolute["success_rate"]) == 320  # ten times the episodes
-        assert sum(absolute["success_rate"]) / 320 == pytest.approx(summary["absolute"]["ego/success_rate"])
