@@ -18,7 +18,7 @@ from omegaconf import OmegaConf
 from sidewalk.report.document import write_report
 from sidewalk.report.tables import Settings
 from sidewalk.schema import register_schemas
-from sidewalk.stats import interval_estimate, probability_of_improvement
+from sidewalk.stats import holm_adjusted, interval_estimate, probability_of_improvement, separation_text
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -266,7 +266,7 @@ def test_the_aggregate_table_shows_each_setting_s_optimality_gap(fig5_report):
     assert "optimality gap" not in fig7 and "| setting |" in fig7
 
 
-def test_every_ordered_pair_of_settings_gets_its_probability_of_improvement(fig5_report):
+def test_every_pair_of_settings_gets_its_probability_of_improvement_once(fig5_report):
     section = fig5_section(fig5_report.report_md.read_text())
     rows = table_rows(section, "| A | B | P(A > B) [95% CI] |")
     planner = "dijkstra / prm, shaped [0]"
@@ -278,21 +278,17 @@ def test_every_ordered_pair_of_settings_gets_its_probability_of_improvement(fig5
         ("random", "centralized"): (0.0 + 0.5) / 2,
         (planner, "centralized"): (0.0 + 1.0) / 2,
     }
-    expected |= {(b, a): 1 - p for (a, b), p in expected.items()}
-    assert [(row[0], row[1]) for row in rows] == [
-        (a, b) for a in FIG5_SETTINGS for b in FIG5_SETTINGS if a != b
-    ]  # every ordered pair, in the table's order
+    assert [(row[0], row[1]) for row in rows] == list(expected)  # each pair once (P(B > A) = 1 − P(A > B))
     numbers = pd.read_csv(fig5_report.out / "report.csv")
     logged = numbers[numbers.section == f"{FIG5}/probability_of_improvement"]
-    for a, b, cell, words in rows:
-        first, second = (a, b) if list(FIG5_SETTINGS).index(a) < list(FIG5_SETTINGS).index(b) else (b, a)
-        forward = probability_of_improvement(
-            FIG5_SETTINGS[first], FIG5_SETTINGS[second], n_resamples=SETTINGS.n_resamples, seed=SETTINGS.seed
-        )
-        # The reverse pair is the same bootstrap mirrored: P(B > A) = 1 − P(A > B) in every resample.
-        low, high = (forward.low, forward.high) if first == a else (1 - forward.high, 1 - forward.low)
-        assert cell == f"{expected[a, b]:.3f} [{low:.3f}, {high:.3f}]"
-        assert words == ("separates at 95%" if low > 0.5 or high < 0.5 else "does not separate at 95%")
+    tested = holm_adjusted([
+        probability_of_improvement(FIG5_SETTINGS[a], FIG5_SETTINGS[b], n_resamples=SETTINGS.n_resamples,
+                                   seed=SETTINGS.seed)
+        for a, b in expected
+    ])
+    for (a, b, cell, words), interval in zip(rows, tested):
+        assert cell == f"{expected[a, b]:.3f} [{interval.low:.3f}, {interval.high:.3f}]"
+        assert words == separation_text(interval, 0.5) and words.endswith("; Holm over 3)")
         row = logged[logged.condition == f"{a} > {b}"]
         values = dict(zip(row.statistic, row.value))
         assert values["probability_of_improvement"] == pytest.approx(expected[a, b])
@@ -300,12 +296,13 @@ def test_every_ordered_pair_of_settings_gets_its_probability_of_improvement(fig5
             values["probability_of_improvement_ci_low"],
             values["probability_of_improvement_ci_high"],
         ) == (
-            pytest.approx(low),
-            pytest.approx(high),
+            pytest.approx(interval.low),
+            pytest.approx(interval.high),
         )
-        assert set(row.note) == {words} and set(row.seeds) == {18}
-    # The settings differ as the runs show: random loses to centralized for sure, not to the planners; the planners
-    # and centralized split the panels, P = 0.5 in every resample.
+        assert set(row.note) == {f"{words}; {interval.note}"} and set(row.seeds) == {18}  # few runs: said
+    # 4 and 5 runs a panel: random's interval against centralized excludes 0.5, but the stratified test of the runs
+    # does not separate them (p ≈ 0.06 alone, 0.12 in the family of three); the planners and centralized split the
+    # panels, P = 0.5 in every resample.
     verdicts = {(row[0], row[1]): row[3] for row in rows}
-    assert verdicts["random", "centralized"] == "separates at 95%"
-    assert verdicts["random", planner] == verdicts[planner, "centralized"] == "does not separate at 95%"
+    assert tested[1].high < 0.5 and verdicts["random", "centralized"].startswith("does not separate at 95% (p 0.12")
+    assert all(words.startswith("does not separate at 95%") for words in verdicts.values())

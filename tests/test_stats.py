@@ -6,6 +6,7 @@ of two independent samples, and whether an interval separates a comparison."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -13,12 +14,17 @@ import pytest
 import scipy.stats
 
 from sidewalk.stats import (
+    FEW_RUNS,
     ONE_RUN_NOTE,
     difference_interval,
     fraction_above,
+    holm,
+    holm_adjusted,
     interval_estimate,
     optimality_gap,
+    paired_difference_interval,
     performance_profile,
+    permutation_p,
     probability_of_improvement,
     separates,
     separation_text,
@@ -165,10 +171,14 @@ def test_the_probability_of_improvement_resamples_both_samples_within_each_task(
 def test_a_clearly_better_sample_separates_and_one_run_has_no_interval():
     better = probability_of_improvement([0.8, 0.9, 0.85, 0.95], [0.1, 0.3, 0.2, 0.25], n_resamples=500)
     assert better.point == 1.0 and better.low > 0.5 and separates(better, 0.5)
-    assert separation_text(better, 0.5) == "separates at 95%"
+    # 4 against 4 seeds: 70 splits, the two most extreme of which give p = 2/70.
+    assert better.p == pytest.approx(2 / 70) and better.smallest_p == pytest.approx(2 / 70)
+    assert separation_text(better, 0.5) == "separates at 95% (p 0.029, exact Mann-Whitney, 4 v 4 seeds)"
     one = probability_of_improvement([[0.9, 0.2], [np.nan, 0.4]], [[0.1, 0.3], [0.2, 0.5]], n_resamples=200)
     assert one.point == pytest.approx((1.0 + 0.25) / 2) and math.isnan(one.low) and one.note == ONE_RUN_NOTE
-    assert not separates(one, 0.5) and separation_text(one, 0.5) == "no interval (1 run)"
+    # 1 v 2 and 2 v 2 runs split 3 × 6 ways: no test at 5 %.
+    assert not separates(one, 0.5) and one.smallest_p == pytest.approx(2 / 18)
+    assert separation_text(one, 0.5).startswith("cannot separate at 95% (smallest p 0.11: stratified Mann-Whitney")
     with pytest.raises(ValueError, match="x has 2 tasks and y has 1"):
         probability_of_improvement([[0.1, 0.2], [0.3, 0.4]], [0.1, 0.2])
     with pytest.raises(ValueError, match="n_resamples=0"):
@@ -176,11 +186,15 @@ def test_a_clearly_better_sample_separates_and_one_run_has_no_interval():
 
 
 def test_the_difference_of_two_samples_is_an_independent_bootstrap():
-    apart = difference_interval([1.0, 1.0, 1.0], [0.0, 0.0, 0.0], n_resamples=200)
+    apart = difference_interval([1.0, 1.0, 1.0, 1.0], [0.0, 0.0, 0.0, 0.0], n_resamples=200)
     assert (apart.point, apart.low, apart.high) == (1.0, 1.0, 1.0) and separates(apart, 0.0)
-    equal = difference_interval([0.2, 0.5, 0.9], [0.2, 0.5, 0.9], n_resamples=500)
+    # Three seeds a side never separate, however far apart: 20 splits, p ≥ 2/20, though the interval excludes 0.
+    three = difference_interval([1.0, 1.0, 1.0], [0.0, 0.0, 0.0], n_resamples=200)
+    assert three.low == 1.0 and three.p == pytest.approx(0.1) and not separates(three, 0.0)
+    assert separation_text(three, 0.0) == "cannot separate at 95% (smallest p 0.1: exact Mann-Whitney, 3 v 3 seeds)"
+    equal = difference_interval([0.2, 0.5, 0.9, 0.4], [0.2, 0.5, 0.9, 0.4], n_resamples=500)
     assert equal.point == 0.0 and equal.low < 0.0 < equal.high and not separates(equal, 0.0)
-    assert separation_text(equal, 0.0, confidence=0.9) == "does not separate at 90%"
+    assert separation_text(equal, 0.0, confidence=0.9) == "does not separate at 90% (p 1, exact Mann-Whitney, 4 v 4 seeds)"
     a, b = [3.0, 4.0, 6.0, np.nan], [1.0, 2.0, 2.5]
     got = difference_interval(a, b, "median", n_resamples=1000, seed=9)
     expected = scipy.stats.bootstrap(
@@ -203,3 +217,73 @@ def test_the_difference_of_two_samples_is_an_independent_bootstrap():
         difference_interval([1.0, 2.0], [1.0, 2.0], "mode")
     with pytest.raises(ValueError, match="confidence=0.0"):
         difference_interval([1.0, 2.0], [1.0, 2.0], confidence=0.0)
+
+
+# ---- tests at the seed level: exact, valid at their n, and adjusted for multiplicity ---------------------------------
+
+
+def test_the_rank_test_is_scipys_exact_mann_whitney_and_a_censored_seed_ranks_last():
+    rng = np.random.default_rng(5)
+    a, b = rng.normal(0.0, 1.0, 7), rng.normal(1.0, 1.0, 8)
+    p, smallest, how = permutation_p(a, b)
+    assert p == pytest.approx(scipy.stats.mannwhitneyu(a, b, method="exact").pvalue)  # no ties: the same test
+    assert smallest == pytest.approx(2 / math.comb(15, 7)) and how == "exact Mann-Whitney, 7 v 8 seeds"
+    # A seed that never learned (inf frames) is the slowest of all: three learners against three that never did.
+    assert permutation_p([1e4, 2e4, 3e4], [math.inf] * 3)[0] == pytest.approx(0.1)
+    assert permutation_p([1.0, 1.0, 1.0], [1.0, 1.0, 1.0])[0] == 1.0  # all tied: nothing to tell apart
+
+
+def test_the_sign_flip_test_enumerates_every_flip_of_the_paired_differences():
+    differences = np.array([0.3, 0.1, 0.2, -0.05, 0.25])
+    p, smallest, how = permutation_p(differences, None, paired=True)
+    flips = np.array(list(itertools.product([-1, 1], repeat=5)))
+    expected = np.mean(np.abs(flips @ differences) >= abs(differences.sum()) - 1e-12)
+    assert p == pytest.approx(expected) and smallest == pytest.approx(2 / 32) and how == "exact sign-flip, 5 seeds"
+    paired = paired_difference_interval([0.9, 0.8, 0.85], [0.6, 0.7, 0.65], n_resamples=200)
+    assert paired.point == pytest.approx(0.2) and paired.p == pytest.approx(0.25)  # 3 pairs: 2 of 8 flips as far
+    with pytest.raises(ValueError, match="equal length|one shape"):
+        paired_difference_interval([1.0, 2.0], [1.0])
+
+
+def test_a_seed_that_fixes_a_convention_is_one_unit_across_partners():
+    # The audit's pattern: each seed of a condition plays all partners; seeds 0 and 1 fail partner A and meet B,
+    # seed 2 the other way round. Partners are not samples: the clustered test splits whole seeds.
+    x = np.array([[0.0, 1.0, 0.9], [0.0, 1.0, 0.9], [1.0, 0.0, 0.9]])
+    y = np.array([[0.5, 0.5, 0.5], [0.5, 0.5, 0.5], [0.5, 0.5, 0.5]])
+    clustered = probability_of_improvement(x, y, clustered=True, n_resamples=2000)
+    assert clustered.test == "exact Mann-Whitney, 3 v 3 seeds over 3 tasks" and clustered.smallest_p == 0.1
+    assert not separates(clustered, 0.5)
+    # Whole rows are resampled: a resample of three copies of seed 2 is possible, of seed 0's first cell with seed
+    # 2's second is not, so every resampled P(X > Y) is a mean over whole seeds.
+    rows = np.array([[0.0, 1.0], [1.0, 0.0]])
+    interval = interval_estimate(rows, "mean", clustered=True, n_resamples=500)
+    assert (interval.point, interval.low, interval.high) == (0.5, 0.5, 0.5)  # every row's mean is 0.5
+    assert interval_estimate(rows, "mean", n_resamples=500).low < 0.5  # the stratified one mixes cells
+
+
+def test_holm_adjusts_a_family_step_down_and_names_it():
+    assert holm([0.01, 0.04, 0.03, math.nan]) == pytest.approx([0.03, 0.06, 0.06, math.nan], nan_ok=True)
+    assert holm([0.5, 0.001]) == pytest.approx([0.5, 0.002])
+    tested = [difference_interval([1.0, 2, 3, 4], [6.0, 7, 8, 9], n_resamples=100)] * 3
+    adjusted = holm_adjusted(tested)
+    assert adjusted[0].p == pytest.approx(3 * tested[0].p) and adjusted[0].test.endswith("; Holm over 3")
+    assert not separates(adjusted[0], 0.0) and separates(tested[0], 0.0)  # p 2/70 alone, 3 × that in a family
+
+
+def test_the_verdicts_error_rate_holds_at_few_seeds_where_the_bootstrap_interval_does_not():
+    # Equal conditions, 3 and 5 seeds a side: how often each rule calls a difference. The percentile bootstrap's
+    # false separations run far above 5 % (the audit: 19 % at 3, 12 % at 5); the exact test's stay at or below 5 %.
+    # 400 draws: a rate near 0.05 has a standard error of 0.011, so the bounds below sit 3 errors away.
+    rng = np.random.default_rng(0)
+    for seeds, bootstrap_above in ((3, 0.12), (5, 0.08)):
+        by_interval = by_test = 0
+        for _ in range(400):
+            d = difference_interval(rng.normal(size=seeds), rng.normal(size=seeds), n_resamples=400,
+                                    seed=int(rng.integers(1 << 30)))
+            by_interval += d.low > 0 or d.high < 0
+            by_test += separates(d, 0.0)
+        assert by_interval / 400 > bootstrap_above and by_test / 400 <= 0.05 + 0.033
+    # What FEW_RUNS says: at 3 runs a nominal 95 % interval of a mean covers far less (the audit measured 0.74).
+    intervals = [interval_estimate(rng.normal(size=3), "mean", n_resamples=400, seed=k) for k in range(400)]
+    covered = sum(interval.low <= 0.0 <= interval.high for interval in intervals)
+    assert covered / 400 < 0.85 and FEW_RUNS == 10

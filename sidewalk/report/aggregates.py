@@ -40,6 +40,7 @@ from sidewalk.report.tables import (
 from sidewalk.stats import (
     Interval,
     Profile,
+    holm_adjusted,
     interval_estimate,
     mean_se,
     performance_profile,
@@ -137,23 +138,17 @@ def aggregate_table(aggregates: Sequence[Aggregate], confidence: float) -> list[
 def improvements(
     aggregates: Sequence[Aggregate], settings: Settings
 ) -> list[tuple[Aggregate, Aggregate, Interval]]:
-    """(A, B, P(A > B)) for every ordered pair of ``aggregates``, with the stratified-bootstrap interval at
-    ``settings``' confidence, resamples and seed. P(B > A) is 1 − P(A > B) resample by resample, so it is derived from
-    the same bootstrap: the two intervals mirror each other exactly."""
-    found: dict[tuple[int, int], Interval] = {}
-    for (i, a), (j, b) in itertools.combinations(enumerate(aggregates), 2):
-        forward = probability_of_improvement(
-            a.scores,
-            b.scores,
-            confidence=settings.confidence,
-            n_resamples=settings.n_resamples,
-            seed=settings.seed,
-        )
-        found[i, j] = forward
-        found[j, i] = Interval(
-            1.0 - forward.point, 1.0 - forward.high, 1.0 - forward.low, forward.runs, forward.note
-        )
-    return [(a, b, found[i, j]) for (i, a), (j, b) in itertools.permutations(enumerate(aggregates), 2)]
+    """(A, B, P(A > B)) for every pair of ``aggregates``, each pair once (P(B > A) is 1 − P(A > B)), with the
+    stratified-bootstrap interval at ``settings``' confidence, resamples and seed, and the stratified Mann-Whitney
+    test of the pair's runs (``stats.permutation_p``), Holm-adjusted over the pairs as one family."""
+    pairs = [
+        (a, b, probability_of_improvement(
+            a.scores, b.scores, confidence=settings.confidence, n_resamples=settings.n_resamples, seed=settings.seed,
+        ))
+        for a, b in itertools.combinations(aggregates, 2)
+    ]
+    adjusted = holm_adjusted([interval for _, _, interval in pairs])
+    return [(a, b, interval) for (a, b, _), interval in zip(pairs, adjusted)]
 
 
 def improvement_section(
@@ -168,8 +163,10 @@ def improvement_section(
         (
             f"Probability of improvement (rliable): P(A > B) is the chance that a run of A ends with a higher {metric} "
             "than a run of B in the same panel, ties counting half (the normalised Mann-Whitney U), averaged over the "
-            f"panels; 0.5 is no difference. Its {level} CI is a stratified bootstrap of both settings' runs of each "
-            "panel; it separates A from B when it excludes 0.5."
+            f"panels; 0.5 is no difference; each pair once (P(B > A) is 1 − P(A > B)). Its {level} CI is a stratified "
+            "bootstrap of both settings' runs of each panel. A pair separates when the stratified Mann-Whitney test "
+            "(each panel's runs split at random between the two settings, the statistic P(A > B); the run is the "
+            f"unit) gives p ≤ {1 - settings.confidence:.2g} after Holm's adjustment over the table's pairs."
         ),
         "",
         f"| A | B | P(A > B) [{level} CI] | separation |",

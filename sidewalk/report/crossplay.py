@@ -23,7 +23,13 @@ from matplotlib.patches import Rectangle
 from sidewalk.report.figures import _save, slug
 from sidewalk.report.runs import shown_path
 from sidewalk.report.tables import NumberLog, distinct_range, fmt, interval_text
-from sidewalk.stats import Interval, interval_estimate, probability_of_improvement, separation_text
+from sidewalk.stats import (
+    Interval,
+    holm_adjusted,
+    interval_estimate,
+    probability_of_improvement,
+    separation_text,
+)
 
 log = logging.getLogger(__name__)
 
@@ -140,7 +146,8 @@ def condition_table(frame: pd.DataFrame, metric: str) -> tuple[pd.DataFrame, pd.
 def adhoc_table(frame: pd.DataFrame, best: dict[str, float] | None = None) -> pd.DataFrame | None:
     """The ad-hoc score of each condition (``ADHOC_COLUMNS``): the team success of its runs (seeds) with every
     held-out partner (``heldout`` cells), as the interquartile mean of those runs × partners scores with a 95 %
-    stratified-bootstrap interval over the runs (``sidewalk.stats.interval_estimate``); ``mean`` the plain mean.
+    bootstrap interval that resamples whole runs (``sidewalk.stats.interval_estimate``, ``clustered``: one policy
+    played every partner, so the seed is the unit); ``mean`` the plain mean.
     With ``best`` (a held-out member's name → its best response's team success), BR-Prox beside it
     (``br_prox_scores``), over the partners that have a best response. None when the matrix has no held-out partner
     (``--partners heldout``)."""
@@ -150,7 +157,7 @@ def adhoc_table(frame: pd.DataFrame, best: dict[str, float] | None = None) -> pd
     used = _heldout(frame)
     for label, scores in adhoc_scores(frame).items():
         normalised = _br_prox(scores, best or {})
-        interval = interval_estimate(scores.to_numpy(dtype=float), "iqm")
+        interval = interval_estimate(scores.to_numpy(dtype=float), "iqm", clustered=True)
         # A matrix made before distinct episodes were recorded has no such column.
         distinct = used.loc[used["row_label"] == label].get("distinct_episodes")
         known = distinct.dropna() if distinct is not None else pd.Series(dtype=float)
@@ -162,7 +169,7 @@ def adhoc_table(frame: pd.DataFrame, best: dict[str, float] | None = None) -> pd
             "br_prox_partners": normalised.shape[1],
         }
         if normalised.shape[1]:
-            prox = interval_estimate(normalised.to_numpy(dtype=float), "iqm")
+            prox = interval_estimate(normalised.to_numpy(dtype=float), "iqm", clustered=True)
             record |= {"br_prox_iqm": prox.point, "br_prox_low": prox.low, "br_prox_high": prox.high}
         records.append(record)
     return pd.DataFrame(records, columns=list(ADHOC_COLUMNS))
@@ -275,15 +282,19 @@ def adhoc_scores(frame: pd.DataFrame) -> dict[str, pd.DataFrame]:
 
 
 def adhoc_comparisons(frame: pd.DataFrame) -> list[tuple[str, str, Interval]]:
-    """P(A > B) of every ordered pair of conditions over their held-out scores (``probability_of_improvement``, the
-    partners as tasks: each partner's runs resampled on their own), for the partners both were played with."""
+    """P(A > B) of every pair of conditions, each pair once, over their held-out scores (``probability_of_improvement``
+    with the partners as tasks, ``clustered``: a run played every partner, so whole runs are resampled and the exact
+    Mann-Whitney test splits whole seeds), for the partners both were played with; the tests' p-values Holm-adjusted
+    as one family (``stats.holm_adjusted``)."""
     scores = adhoc_scores(frame)
     pairs = []
-    for first, second in itertools.permutations(scores, 2):
+    for first, second in itertools.combinations(scores, 2):
         shared = [partner for partner in scores[first].columns if partner in scores[second].columns]
         pairs.append((first, second, probability_of_improvement(scores[first][shared].to_numpy(dtype=float),
-                                                                scores[second][shared].to_numpy(dtype=float))))
-    return pairs
+                                                                scores[second][shared].to_numpy(dtype=float),
+                                                                clustered=True)))
+    adjusted = holm_adjusted([interval for _, _, interval in pairs])
+    return [(first, second, interval) for (first, second, _), interval in zip(pairs, adjusted)]
 
 
 def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None, responses: pd.DataFrame) -> list[str]:
@@ -331,8 +342,11 @@ def _adhoc_lines(frame: pd.DataFrame, sub: str, numbers: NumberLog | None, respo
             "",
             ("Which condition plays better with partners never met: P(A > B), the chance that a run of A ends a "
              "held-out partner's cell with higher team success than a run of B with the same partner (ties half; "
-             "rliable's probability of improvement, the partners as tasks), with its 95 % stratified-bootstrap "
-             "interval; it separates A from B when the interval excludes 0.5."),
+             "rliable's probability of improvement, the partners as tasks), each pair once (P(B > A) is 1 − P(A > B)), "
+             "with its 95 % bootstrap interval over whole runs. The seed is the unit: one policy played every "
+             "partner, so partners are not independent samples. A pair separates when the exact Mann-Whitney test "
+             "of the two conditions' seeds (every split of the seeds, the statistic P(A > B)) gives p ≤ 0.05 after "
+             "Holm's adjustment over the table's pairs; 3 seeds against 3 cannot (the smallest p is 0.1)."),
             "",
             "| A | B | P(A > B) [95 % interval] | separation |",
             "| --- | --- | --- | --- |",
