@@ -15,7 +15,9 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+from sidewalk.report.conditions import PAPER_FIGURES, compared_settings, figure_panels, group_conditions
 from sidewalk.report.document import write_report
+from sidewalk.report.runs import find_run_folders, load_run
 from sidewalk.report.tables import Settings
 from sidewalk.schema import register_schemas
 from sidewalk.stats import holm_adjusted, interval_estimate, probability_of_improvement, separation_text
@@ -306,3 +308,17 @@ def test_every_pair_of_settings_gets_its_probability_of_improvement_once(fig5_re
     verdicts = {(row[0], row[1]): row[3] for row in rows}
     assert tested[1].high < 0.5 and verdicts["random", "centralized"].startswith("does not separate at 95% (p 0.12")
     assert all(words.startswith("does not separate at 95%") for words in verdicts.values())
+
+
+def test_panels_of_different_numbers_of_noise_levels_match_only_their_lowest_and_highest():
+    # The reference's Fig. 6: the grid and the 5000-iteration plane compare three noise levels, the 500-iteration
+    # plane panels two. Matched by rank, the plane's ε = 1.5 at 500 iterations would pool with the grid's n = 0.1;
+    # only each panel's lowest and highest are matched, and the middle levels are left out, named.
+    conditions = group_conditions(
+        [load_run(folder) for folder in find_run_folders([ROOT / "results/reference/runs/seeds0-4"])]
+    )
+    spec = next(figure for figure in PAPER_FIGURES if figure.name == "fig6_success_under_noise")
+    compared, left_out = compared_settings(spec, figure_panels(spec, conditions))
+    noise = [sorted({str(c.flat.get("noise")) for c in setting.conditions}) for setting in compared]
+    assert noise == [["0.0", "0.01", "0.5"], ["0.2", "1.5"]]
+    assert sorted(str(c.flat.get("noise")) for c in left_out) == ["0.1", "0.5"]  # the grid's and the 5000 plane's middles

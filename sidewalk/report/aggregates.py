@@ -241,7 +241,8 @@ def aggregate_section(
     ]
     if left_out:
         md += [
-            "Not at their rank in every panel, so left out of the aggregate: "
+            "Not at their rank in every panel (or a middle value, where panels compare different numbers of values "
+            "and only each panel's first and last are matched), so left out of the aggregate: "
             + "; ".join(f"{c.ident} ({c.label})" for c in left_out)
             + ".",
             "",

@@ -310,6 +310,16 @@ def _ranked(spec: PaperFigure, panel: Sequence[Condition]) -> dict[tuple[int, in
     return ranked
 
 
+def _ends_only(by_rank: dict[tuple[int, int], Condition]) -> dict[tuple[int, int], Condition]:
+    """``_ranked``'s conditions with the first value at rank 0, the last at rank 1 and the middle ones at ranks past
+    any other panel's (so they match nothing and are left out)."""
+    last = max(rank for rank, _ in by_rank)
+    return {
+        ((0 if rank == 0 else 1 if rank == last else 1_000 + rank), sub): condition
+        for (rank, sub), condition in by_rank.items()
+    }
+
+
 def _setting_text(spec: PaperFigure, panel: Sequence[Condition], condition: Condition) -> str:
     """``condition``'s setting in ``panel``: its values of the keys that follow ``spec.primary`` across the panel
     ("prm", "explicit reward"), or its whole legend text where another condition of the panel shares its value
@@ -336,8 +346,15 @@ def compared_settings(
 ) -> tuple[list[ComparedSetting], list[Condition]]:
     """The settings ``spec``'s panels compare, matched across panels by rank (panels sort their conditions alike:
     random, planner, centralized; lowest noise first; explicit before implicit), each labelled by the values it
-    pools; and the conditions left out because some panel has nothing at their rank."""
+    pools; and the conditions left out because some panel has nothing at their rank.
+
+    Where panels compare different numbers of values (three noise levels in one, two in another), a middle rank
+    means different things in each: only the first and the last value of every panel are matched (lowest with
+    lowest, highest with highest), and the middle ones are left out."""
     ranked = [_ranked(spec, panel) for panel in panels]
+    counts = {1 + max(rank for rank, _ in by_rank) for by_rank in ranked if by_rank}
+    if len(counts) > 1:
+        ranked = [_ends_only(by_rank) for by_rank in ranked]
     shared = sorted(set.intersection(*(set(r) for r in ranked))) if ranked else []
     settings = []
     for rank in shared:
