@@ -670,3 +670,21 @@ def test_fig10_panel_titles_keep_to_their_panels(monkeypatch, tmp_path):
     assert len(boxes) == 3
     for left, right in itertools.pairwise(boxes):
         assert left.x1 <= right.x0, f"a title ends at {left.x1:.0f} px, its right neighbour's starts at {right.x0:.0f}"
+
+
+def test_the_who_yields_table_reads_each_condition_from_its_seeds(tmp_path):
+    # The committed IQL self-play runs with greedy worlds (5 seeds) and their control (1 seed), report on them.
+    folders = [ROOT / "results/who-yields/greedy-worlds/iql", ROOT / "results/who-yields/greedy-worlds-control"]
+    result = write_report(folders, tmp_path / "out", Settings(n_resamples=200, trajectory_episodes=0))
+    section = result.report_md.read_text().split("## Who yields")[1].split("\n## ")[0]
+    rows = [line for line in section.splitlines() if line.startswith("| C")]
+    assert len(rows) == 2
+    greedy = next(row for row in rows if "greedy_worlds=0.25" in row).split(" | ")
+    summaries = [json.loads(path.read_text()) for path in sorted(folders[0].glob("seed*/summary.json"))]
+    share = np.mean([summary["social/agent1_yields_first"] for summary in summaries])
+    assert greedy[2] == "5" and greedy[4].startswith("1.000 [1.000, 1.000]")  # every seed 1.00 at the end
+    assert f"agent 1 first {share:.3f}" in greedy[6]
+    salsa = [summary["social/salsa_count"] for summary in summaries]
+    assert greedy[7].startswith(f"{np.mean(salsa):.2f} ± {np.std(salsa, ddof=1) / np.sqrt(5):.2f}")
+    numbers = pd.read_csv(result.out / "report.csv")
+    assert set(numbers[numbers.section == "who_yields"].metric) >= {"success_rate", "deadlock_rate", "social/no_yield"}

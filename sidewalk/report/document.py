@@ -38,6 +38,7 @@ from sidewalk.report.runs import (
     shown_path,
 )
 from sidewalk.report.tables import NumberLog, Settings, distinct_range, records_safety
+from sidewalk.report.who_yields import who_yields_section
 from sidewalk.run_folder import CONFIG, METRICS
 
 log = logging.getLogger(__name__)
@@ -132,6 +133,7 @@ def write_report(
         md += aggregate_section(spec, conditions, settings, figures_dir, figures, numbers, curves_rows)
     md += trajectory_section(conditions, settings, figures_dir, figures, notes)
     md += family_sections(conditions, settings, figures_dir, figures, numbers, curves_rows)
+    md += who_yields_section(conditions, settings, numbers)
     md += crossplay_sections(crossplay, figures_dir, out, figures, numbers)
     md += _statistics_section(settings, safety=any(records_safety(c) for c in conditions))
     md += _marl_eval_section(write_marl_eval(conditions, out), out)
