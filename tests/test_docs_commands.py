@@ -73,6 +73,8 @@ FILL = {
         {"'opponent.path=results/runs/<RUN_DIR>'": "opponent.path=runs/README-2"},
     "python runners/crossplay.py 'results/sweeps/<A>' 'results/sweeps/<B>' --out results/crossplay":
         {"'results/sweeps/<A>' 'results/sweeps/<B>'": "sweeps/multiagent-4 sweeps/experiments-5"},
+    "python runners/report.py 'results/runs/<RUN_DIR>' --out results/who-yields-report":
+        {"'results/runs/<RUN_DIR>'": "runs/multiagent-9"},
     "python -m sidewalk.reference collect results/sweeps/reference/seeds0-4 results/reference/runs/seeds0-4":
         {"results/sweeps/reference/seeds0-4": "sweeps/README-8"},
 }
