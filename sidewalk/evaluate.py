@@ -303,7 +303,9 @@ class _EpisodeTally:
             self._add_separation(now, world.get("present").squeeze(-1), running)
         if self.social is not None:
             present = world.get("present").squeeze(-1).bool()
-            self.social.add_step(world.get("state"), was_active & live & present)
+            # The pair's first collision: an agent-agent collision flag that was not set before this step.
+            collided = (info["collided_agent"] & ~self.final_info["collided_agent"]).any(-1) & running
+            self.social.add_step(world.get("state"), was_active & live & present, collided)
         for key in INFO_KEYS:
             self.final_info[key] = torch.where(live, info[key], self.final_info[key])
         if self.record_trajectories:

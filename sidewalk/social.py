@@ -17,7 +17,17 @@ sizes have none), from the agents' states step by step, while both are present a
   of episodes with at least one;
 - who yields first: the first agent to stray ``DEVIATION_M`` (grid: a row) from the straight line from its start to
   its goal while the two are still to pass; the share of episodes in which agent 0, agent 1 (the ego and the
-  partner in an ego view) or both in the same step yielded first, and ``no_yield`` where neither did.
+  partner in an ego view) or both in the same step yielded first, and ``no_yield`` where neither did;
+- proxemic zones (Hall 1966, with HuNavSim's radii and distance: Pérez-Higueras et al. 2023,
+  ``hunav_evaluator/hunav_metrics.py``): each step both are present and active falls in one zone by the distance
+  from one agent's body to the other's centre (centres' distance less the agent radius), intimate below 0.45 m,
+  personal below 1.2 m, social below 3.6 m, public beyond; ``zone_<name>`` is the mean over episodes of each
+  episode's share of such steps (an episode without one counts in none). The grid has no metres: a cell is taken as
+  ``GRID_CELL_M`` (one walker's body fits a cell: Fruin's 0.46 × 0.61 m body ellipse), its radius half a cell;
+- who ran into whom: at the first collision of the two, the agent whose step carried it further toward the other
+  (its displacement along the line between them before the step) ran into the other, both where neither carried it
+  ``RAN_INTO_MARGIN`` further (a swap in the grid, a head-on meeting); ``<agent>_ran_into`` and ``both_ran_into`` are
+  shares of episodes (0 without a collision).
 """
 
 from __future__ import annotations
@@ -34,13 +44,20 @@ LATERAL_STEP_M = 0.05  # a sideways step of a continuous agent (a walking step i
 SALSA_WINDOW_STEPS = 1  # a sidestep answering the other's one step later still mirrors it (0.2 s in the continuous world)
 DEVIATION_M = 0.2  # off its line by this much, an agent has yielded (grid: one row)
 GRID_COLLIDE_CELLS = 0.5
+# Hall's (1966) zones with HuNavSim's radii (m): a step is in the first zone whose bound its distance is below.
+ZONES = (("intimate", 0.45), ("personal", 1.2), ("social", 3.6), ("public", math.inf))
+GRID_CELL_M = 0.5
+RAN_INTO_MARGIN = 0.1  # a share of the larger approach: closer than this, both ran into each other
 _SHARE = "share of episodes"
 # Every key SocialTally.summary may write, with its unit (ego views name the ego and the partner; others agent 0, 1).
 SOCIAL_UNITS = {f"social/{name}": unit for name, unit in (
     ("salsa_count", "steps an episode"), ("min_ttc", "s (grid: steps), median"), ("jerk", "m/s³ (grid: none)"),
     ("intrusion_steps", "steps an episode"), ("intrusion_rate", _SHARE), ("ego_yields_first", _SHARE),
     ("partner_yields_first", _SHARE), ("agent0_yields_first", _SHARE), ("agent1_yields_first", _SHARE),
-    ("both_yield_first", _SHARE), ("no_yield", _SHARE))}
+    ("both_yield_first", _SHARE), ("no_yield", _SHARE),
+    *((f"zone_{zone}", "share of steps, mean over episodes") for zone, _ in ZONES),
+    ("ego_ran_into", _SHARE), ("partner_ran_into", _SHARE), ("agent0_ran_into", _SHARE),
+    ("agent1_ran_into", _SHARE), ("both_ran_into", _SHARE))}
 SOCIAL_KEYS = tuple(SOCIAL_UNITS)
 
 
@@ -65,6 +82,10 @@ class SocialTally:
     first_yield: torch.Tensor  # (B,) long: -1 none yet, 0 or 1 the agent, 2 both in one step
     last_side: torch.Tensor  # (B, 2) the side of each agent's last sidestep (±1, 0 none yet)
     since_side: torch.Tensor  # (B, 2) steps since that sidestep
+    zone_steps: torch.Tensor  # (B, zones) steps both present and active spent in each zone
+    body_m: float  # the distance from a centre to the body's edge, in metres
+    metres: float  # metres in a unit of position (1, or GRID_CELL_M in the grid)
+    ran_into: torch.Tensor  # (B,) long: -1 no collision yet, 0 or 1 the agent that ran into the other, 2 both
     window: int = SALSA_WINDOW_STEPS
 
     @classmethod
@@ -84,14 +105,17 @@ class SocialTally:
             salsa=zeros(), intrusions=zeros(), min_ttc=torch.full((n_worlds,), math.inf, device=device),
             jerk_squares=zeros(2), jerk_steps=zeros(2),
             first_yield=torch.full((n_worlds,), -1, dtype=torch.long, device=device),
-            last_side=zeros(2), since_side=zeros(2),
+            last_side=zeros(2), since_side=zeros(2), zone_steps=zeros(len(ZONES)),
+            body_m=GRID_CELL_M / 2 if grid else radius_m, metres=GRID_CELL_M if grid else 1.0,
+            ran_into=torch.full((n_worlds,), -1, dtype=torch.long, device=device),
         )
 
     def _axes(self) -> tuple[int, int]:
         return (1, 0) if self.grid else (0, 1)  # (along, across): grid (row, col); continuous (x, y)
 
-    def add_step(self, state: torch.Tensor, active: torch.Tensor) -> None:
-        """Add a step that left the agents at ``state`` (B, 2, ≥2); ``active`` (B, 2): present, running, not done."""
+    def add_step(self, state: torch.Tensor, active: torch.Tensor, collided: torch.Tensor | None = None) -> None:
+        """Add a step that left the agents at ``state`` (B, 2, ≥2); ``active`` (B, 2): present, running, not done
+        before it; ``collided`` (B,): the two collided in this step (None: no collision is tallied)."""
         now = state[..., :2].float()
         both = active.all(-1)
         velocity = (now - self.previous) if self.grid else _unicycle_velocity(state)
@@ -106,7 +130,25 @@ class SocialTally:
         self.min_ttc = torch.where(both, torch.minimum(self.min_ttc, ttc), self.min_ttc)
         self._add_jerk(velocity, active)
         self._add_yield(now, to_pass & both)
+        self._add_zone(gap, both)
+        if collided is not None:
+            self._add_ran_into(now, collided)
         self.previous = now
+
+    def _add_zone(self, gap: torch.Tensor, both: torch.Tensor) -> None:
+        distance = gap * self.metres - self.body_m
+        bounds = torch.tensor([bound for _, bound in ZONES], device=gap.device)
+        zone = torch.bucketize(distance, bounds[:-1], right=True)  # (B,) index of the first bound above
+        self.zone_steps += torch.nn.functional.one_hot(zone, len(ZONES)).float() * both.unsqueeze(-1)
+
+    def _add_ran_into(self, now: torch.Tensor, collided: torch.Tensor) -> None:
+        toward = self.previous.flip(1) - self.previous  # (B, 2, 2): each agent's line to the other, before the step
+        toward = toward / toward.norm(dim=-1, keepdim=True).clamp(min=1e-9)
+        approach = ((now - self.previous) * toward).sum(-1)  # (B, 2)
+        larger = approach.max(-1).values
+        both = (approach - larger.unsqueeze(-1)).abs().max(-1).values <= RAN_INTO_MARGIN * larger.abs()
+        who = torch.where(both, 2, approach.argmax(-1))
+        self.ran_into = torch.where((self.ran_into < 0) & collided, who, self.ran_into)
 
     def _mirrored(self, sideways: torch.Tensor) -> torch.Tensor:
         """(B,) whether a sidestep of this step matches the other's side now or within the window before."""
@@ -148,7 +190,15 @@ class SocialTally:
         learner_jerk = jerk[:, learner][steps[:, learner] > 0]
         names = ("ego", "partner") if ego is not None else ("agent0", "agent1")
         order = (ego, 1 - ego) if ego is not None else (0, 1)
+        counted = self.zone_steps.sum(-1, keepdim=True)
+        zone_shares = (self.zone_steps / counted.clamp(min=1))[counted.squeeze(-1) > 0].cpu().numpy()
+        ran_into = self.ran_into.cpu().numpy()
         return {
+            **{f"social/zone_{zone}": float(zone_shares[:, index].mean()) if len(zone_shares) else math.nan
+               for index, (zone, _) in enumerate(ZONES)},
+            f"social/{names[0]}_ran_into": float((ran_into == order[0]).mean()),
+            f"social/{names[1]}_ran_into": float((ran_into == order[1]).mean()),
+            "social/both_ran_into": float((ran_into == 2).mean()),
             "social/salsa_count": float(self.salsa.mean()),
             "social/min_ttc": float(np.median(self.min_ttc.cpu().numpy())),
             "social/jerk": float(learner_jerk.mean()) if learner_jerk.size and not self.grid else math.nan,

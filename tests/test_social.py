@@ -10,7 +10,7 @@ from test_report_safety import SETTINGS, base_config, sweep, write_run
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.evaluate import evaluate
 from sidewalk.report.document import write_report
-from sidewalk.social import SocialTally
+from sidewalk.social import GRID_CELL_M, SocialTally
 from sidewalk.views import view_for_opponent
 
 RADIUS_M = 0.2
@@ -92,13 +92,55 @@ def test_the_first_agent_off_its_line_yields_first():
     assert summary["social/no_yield"] == 0.0
 
 
+def test_each_step_falls_in_one_proxemic_zone_by_the_distance_from_a_body_to_the_other_centre():
+    # Continuous, radius 0.2 m: centres 0.6 m apart are 0.4 m from a body (intimate), 1.0 m apart 0.8 m (personal),
+    # 2.0 m apart 1.8 m (social); four steps, one in each of the first three zones and one more in the social zone.
+    tally = continuous_tally(unicycle((0.0, 1.0, 0.0, 0.0), (4.0, 1.0, 0.0, math.pi)), [[4.0, 1.0], [0.0, 1.0]])
+    for gap in (2.0, 1.0, 0.6, 2.0):
+        tally.add_step(unicycle((1.0, 1.0, 0.0, 0.0), (1.0 + gap, 1.0, 0.0, math.pi)), BOTH)
+    tally.add_step(unicycle((1.0, 1.0, 0.0, 0.0), (9.0, 1.0, 0.0, math.pi)), ~BOTH)  # not both active: in none
+    zones = {key: value for key, value in tally.summary(ego=0).items() if "zone" in key}
+    assert zones == {"social/zone_intimate": 0.25, "social/zone_personal": 0.25, "social/zone_social": 0.5,
+                     "social/zone_public": 0.0}
+    # The grid: a cell is GRID_CELL_M, a body half of it. A neighbouring cell is intimate (0.5 - 0.25 m), a
+    # diagonal one personal (0.71 - 0.25 = 0.46 m).
+    grid = grid_tally([[2, 3], [2, 9]], [[2, 12], [2, 0]])
+    grid.add_step(torch.tensor([[[2, 4], [2, 5]]]), BOTH)
+    grid.add_step(torch.tensor([[[2, 4], [3, 5]]]), BOTH)
+    summary = grid.summary(ego=0)
+    assert (summary["social/zone_intimate"], summary["social/zone_personal"]) == (0.5, 0.5) and GRID_CELL_M == 0.5
+
+
+def test_the_agent_that_carried_a_collision_ran_into_the_other():
+    # The ego steps into the cell where the partner stands still: the ego ran into the partner.
+    onto = grid_tally([[2, 3], [2, 5]], [[2, 12], [2, 0]])
+    onto.add_step(torch.tensor([[[2, 4], [2, 5]]]), BOTH)
+    onto.add_step(torch.tensor([[[2, 5], [2, 5]]]), BOTH, torch.tensor([True]))
+    summary = onto.summary(ego=0)
+    assert (summary["social/ego_ran_into"], summary["social/partner_ran_into"]) == (1.0, 0.0)
+    # Head on, both a cell toward each other (a swap): both ran into each other; only the first collision counts.
+    swap = grid_tally([[2, 4], [2, 5]], [[2, 12], [2, 0]])
+    swap.add_step(torch.tensor([[[2, 5], [2, 4]]]), BOTH, torch.tensor([True]))
+    swap.add_step(torch.tensor([[[2, 5], [2, 5]]]), BOTH, torch.tensor([True]))
+    assert swap.summary(ego=None)["social/both_ran_into"] == 1.0
+    calm = grid_tally([[2, 3], [2, 9]], [[2, 12], [2, 0]])
+    calm.add_step(torch.tensor([[[2, 4], [2, 8]]]), BOTH, torch.tensor([False]))
+    assert calm.summary(ego=None)["social/agent0_ran_into"] == 0.0 and calm.summary(ego=None)["social/both_ran_into"] == 0.0
+
+
 @pytest.mark.parametrize("core_class, opponent", [(DiscreteSidewalkEnv, "dijkstra"), (ContinuousSidewalkEnv, "prm")])
 def test_a_real_evaluation_reports_every_measure(core_class, opponent):
     metrics = evaluate(view_for_opponent(core_class(64, seed=0), opponent, 0), None, seed=0)
     social = {key: value for key, value in metrics.items() if key.startswith("social/")}
-    assert len(social) == 9
+    assert len(social) == 16
     shares = [social[f"social/{who}"] for who in ("ego_yields_first", "partner_yields_first", "both_yield_first", "no_yield")]
     assert sum(shares) == pytest.approx(1.0)
+    assert sum(social[f"social/zone_{zone}"] for zone in ("intimate", "personal", "social", "public")) == pytest.approx(1)
+    # Every episode where an agent hit the other (the ego, or the partner, say into the ego parked at its goal) names
+    # who ran into whom, and no other does: as many as either agent's, at most both agents' together.
+    ran_into = sum(social[f"social/{who}_ran_into"] for who in ("ego", "partner", "both"))
+    ego, other = metrics["ego/agent_collision_rate"], metrics["other/agent_collision_rate"]
+    assert max(ego, other) - 1e-6 <= ran_into <= ego + other + 1e-6
     assert social["social/salsa_count"] >= 0 and social["social/intrusion_rate"] <= 1
     if core_class is ContinuousSidewalkEnv:
         assert math.isfinite(social["social/jerk"]) and social["social/jerk"] > 0
