@@ -20,6 +20,7 @@ from sidewalk.envs.grid import VECTOR_FIELDS
 from sidewalk.envs.unicycle import OBSERVATION_FIELDS
 
 UP, DOWN = 0, 1
+GRID_HALF_TURN_ACTIONS = (1, 0, 3, 2)  # UP, DOWN, LEFT, RIGHT turned by half a turn: DOWN, UP, RIGHT, LEFT
 
 
 def turn_observation(observation: torch.Tensor, layout: Any) -> torch.Tensor:
@@ -42,6 +43,14 @@ def turn_observation(observation: torch.Tensor, layout: Any) -> torch.Tensor:
         turned[..., y] = (layout.width_m - per_agent[..., y]) * present
     turned[..., 3] = (torch.remainder(per_agent[..., 3], 2 * math.pi) - math.pi) * present  # θ + π, in [-π, π)
     return turned.flatten(-2)
+
+
+def turn_action(action: torch.Tensor, domain: str) -> torch.Tensor:
+    """Actions turned by half a turn: grid (...,) UP↔DOWN and LEFT↔RIGHT; a continuous action (acceleration, turn
+    rate) is the same in a turned world, so it is unchanged. Its own inverse."""
+    if domain == "discrete":
+        return torch.tensor(GRID_HALF_TURN_ACTIONS, device=action.device)[action]
+    return action
 
 
 def mirror_observation(observation: torch.Tensor, layout: Any) -> torch.Tensor:

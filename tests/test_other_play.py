@@ -13,7 +13,7 @@ from sidewalk.config import validate
 from sidewalk.envs import ContinuousSidewalkEnv, DiscreteSidewalkEnv
 from sidewalk.envs.layouts import GridLayout
 from sidewalk.schema import register_schemas
-from sidewalk.symmetry import mirror_action, mirror_observation
+from sidewalk.symmetry import mirror_action, mirror_observation, turn_action, turn_observation
 from sidewalk.views import SelfPlayView
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
@@ -111,3 +111,41 @@ def test_other_play_needs_self_play_and_a_symmetric_layout():
     with pytest.raises(ValueError, match="mirror across the centre line"):
         validate(compose_config(["other_play=true", "opponent=self", "algo=iql", "env.layout=door", "env.n_agents=3"]))
     assert validate(compose_config(["other_play=true", "opponent=self", "algo=iql"])).world.other_play
+
+
+@pytest.mark.parametrize("kind", CORES)
+def test_in_the_role_frame_agent_1_sees_the_game_as_agent_0_and_its_action_steps_the_world_turned_back(kind):
+    # Noise off so that the two views' worlds step alike.
+    make = (lambda: ContinuousSidewalkEnv(64, seed=3)) if kind == "continuous" else (lambda: CORES[kind](64, 3))
+    role, plain = SelfPlayView(make(), role_frame=True), SelfPlayView(make())
+    td, reference = role.reset(), plain.reset()
+    assert role._turned.tolist() == [False, True]
+    # The nominal sidewalk is the half turn of itself with the roles swapped: both agents see one observation.
+    assert torch.equal(td.get(OBS)[:, 0], td.get(OBS)[:, 1])
+    generator = torch.Generator().manual_seed(1)
+    for _ in range(25):
+        expected = reference.get(OBS).clone()
+        expected[:, 1] = turn_observation(reference.get(OBS)[:, 1], role.core.layout)
+        torch.testing.assert_close(td.get(OBS), expected)
+        action = random_actions(role, generator)
+        meant = action.clone()
+        meant[:, 1] = turn_action(action[:, 1], role.domain)  # agent 1's UP is the world's DOWN, its LEFT the RIGHT
+        td = role.step(td.set(ACTION, action))["next"]
+        reference = plain.step(reference.set(ACTION, meant))["next"]
+        assert torch.equal(td.get(("world", "state")), reference.get(("world", "state")))
+    check_env_specs(SelfPlayView(make(), role_frame=True))
+
+
+def test_one_action_of_both_agents_in_the_role_frame_moves_them_apart():
+    # Face to face on the centre row, both take UP in their own frame: agent 0 goes up a row, agent 1 down a row.
+    view = SelfPlayView(DiscreteSidewalkEnv(1, seed=0), role_frame=True)
+    td = view.reset()
+    start = td.get(("world", "state")).clone()
+    td = view.step(td.set(ACTION, torch.zeros(1, 2, dtype=torch.long)))["next"]
+    rows = td.get(("world", "state"))[0, :, 0] - start[0, :, 0]
+    assert rows.tolist() == [-1, 1]
+
+
+def test_the_role_frame_is_refused_where_a_role_has_no_map():
+    with pytest.raises(ValueError, match="role_frame=true needs every agent's role to map onto agent 0's"):
+        SelfPlayView(DiscreteSidewalkEnv(4, seed=0, layout="door", n_agents=3), role_frame=True)

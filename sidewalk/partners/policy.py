@@ -35,11 +35,10 @@ from tensordict import TensorDict, TensorDictBase
 from sidewalk.envs import core_class
 from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase
 from sidewalk.opponents.base import ACTION_KEY, Opponent, env_domain
-from sidewalk.symmetry import turn_observation
+from sidewalk.symmetry import turn_action, turn_observation
 from sidewalk.world import MAY_DIFFER, World
 
 OBSERVATION_KEY = (AGENT_GROUP, "observation")
-GRID_HALF_TURN_ACTIONS = (1, 0, 3, 2)  # UP, DOWN, LEFT, RIGHT turned by half a turn: DOWN, UP, RIGHT, LEFT
 
 
 class PartnerMismatch(ValueError):
@@ -269,8 +268,7 @@ def play_roles(
     action = policy(TensorDict({"observation": flat}, batch_size=[flat.shape[0]])).get("action")
     action = action.unflatten(0, seen.shape[:2])
     if hasattr(layout, "rows") and bool(turned.any()):
-        half_turn = torch.tensor(GRID_HALF_TURN_ACTIONS, device=action.device)
-        action = torch.where(turned.view(1, -1), half_turn[action], action)
+        action = torch.where(turned.view(1, -1), turn_action(action, "discrete"), action)
     return action
 
 

@@ -10,7 +10,13 @@ from torchrl.data import Composite
 
 from sidewalk._torchrl import new_tensordict_unchecked
 from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase, crashed
-from sidewalk.symmetry import check_mirror_symmetric, mirror_action, mirror_observation
+from sidewalk.symmetry import (
+    check_mirror_symmetric,
+    mirror_action,
+    mirror_observation,
+    turn_action,
+    turn_observation,
+)
 from sidewalk.views.base import WORLD, _SidewalkView
 
 
@@ -47,10 +53,18 @@ class SelfPlayView(_SidewalkView):
     (``sidewalk.symmetry``): it sees its observation mirrored and its action is mirrored back before the world steps.
     Its data stays in its own frame, so the learner needs no change, and the policy cannot rely on a convention that
     the mirror breaks. Refused for layouts the mirror does not map onto themselves.
+
+    ``role_frame=True``: every agent sees the game from agent 0's role. In a layout a half turn maps onto itself and
+    agent 0's start and goal onto agent j's (``sidewalk.partners.policy.role_map``: the two-agent sidewalk), agent j
+    sees its observation turned by half a turn and its action is turned back (``sidewalk.symmetry``), as a learned
+    partner playing another role does. One shared policy then takes one action in two situations that mirror each
+    other, and that action moves the two apart (each steps to its own side), where in the world's frame the same
+    action of both keeps them face to face: the greedy pair's standoff. Refused where some agent's role has no map.
     """
 
     def __init__(
-        self, env: SidewalkEnvBase, shield: bool = False, other_play: bool = False, legacy_keys: bool = False
+        self, env: SidewalkEnvBase, shield: bool = False, other_play: bool = False, legacy_keys: bool = False,
+        role_frame: bool = False,
     ) -> None:
         super().__init__(env, shield=shield)
         if not isinstance(legacy_keys, bool):
@@ -68,6 +82,11 @@ class SelfPlayView(_SidewalkView):
         if other_play:
             check_mirror_symmetric(env.layout)
         self.other_play = other_play
+        if not isinstance(role_frame, bool):
+            raise TypeError(f"role_frame={role_frame!r} must be a bool")
+        self.role_frame = role_frame
+        # (N,) bool: the agent plays through the half turn (role_frame); agent 0 never does.
+        self._turned = torch.tensor(self._role_turns() if role_frame else [False] * env.n_agents, device=self.device)
         # (B, N) bool: the agent plays this episode through the mirror; agent 0 never does.
         self._mirrored = torch.zeros(self._agents_shape, dtype=torch.bool, device=self.device)
         self._view_action_key = (AGENT_GROUP, "action")
@@ -121,21 +140,42 @@ class SelfPlayView(_SidewalkView):
             draw[:, 0] = False
             self._mirrored = torch.where(rows.unsqueeze(-1), draw, self._mirrored)
 
+    def _role_turns(self) -> list[bool]:
+        """Whether each agent plays through the half turn to see the game as agent 0 does (``role_frame``)."""
+        from sidewalk.partners.policy import role_map
+
+        maps = [role_map(self.domain, self.core.params, 0, agent) for agent in range(self.core.n_agents)]
+        if None in maps:
+            raise ValueError(
+                f"role_frame=true needs every agent's role to map onto agent 0's (a half turn of a two-agent layout "
+                f"that maps onto itself, or roles drawn alike); this {type(self.core.layout).__name__} maps agents "
+                f"{[agent for agent, m in enumerate(maps) if m is None]} onto none: use env.layout=sidewalk"
+            )
+        return [m == "half_turn" for m in maps]
+
+    def _where_turned(self, value: torch.Tensor, turned_value: torch.Tensor) -> torch.Tensor:
+        """Per agent (B, N, ...): ``turned_value`` where the agent plays through the half turn, else ``value``."""
+        return torch.where(self._turned.view(1, -1, *([1] * (value.dim() - 2))), turned_value, value)
+
     def _where_mirrored(self, value: torch.Tensor, mirrored_value: torch.Tensor) -> torch.Tensor:
         """Per agent (B, N, ...): ``mirrored_value`` where the agent plays through the mirror, else ``value``."""
         mirrored = self._mirrored.view(*self._mirrored.shape, *([1] * (value.dim() - 2)))
         return torch.where(mirrored, mirrored_value, value)
 
     def _joint_action(self, action: torch.Tensor) -> torch.Tensor:
-        if not self.other_play:
-            return action
-        return self._where_mirrored(action, mirror_action(action, self.domain))
+        if self.other_play:
+            action = self._where_mirrored(action, mirror_action(action, self.domain))
+        if self.role_frame:
+            action = self._where_turned(action, turn_action(action, self.domain))
+        return action
 
     def _observation(self, agents: TensorDictBase) -> torch.Tensor:
         observation = agents.get("observation")
-        if not self.other_play:
-            return observation
-        return self._where_mirrored(observation, mirror_observation(observation, self.core.layout))
+        if self.role_frame:  # the half turn and the mirror commute: the order is the action's, reversed
+            observation = self._where_turned(observation, turn_observation(observation, self.core.layout))
+        if self.other_play:
+            observation = self._where_mirrored(observation, mirror_observation(observation, self.core.layout))
+        return observation
 
     def _output(self, core_out: TensorDictBase, reset: bool) -> TensorDictBase:
         agents = core_out.get(AGENT_GROUP)
