@@ -190,7 +190,7 @@ def _checked_world(cfg: DictConfig, domain: str, opponent: str) -> tuple[World, 
     check_int("opponent.ego", ego, 0, n_agents - 1)
     world = World(domain, env_params, opponent, _opponent_params(cfg, opponent), ego,
                   end_on_ego_done=bool(cfg.opponent.end_on_ego_done), shield=bool(cfg.shield),
-                  other_play=bool(cfg.other_play))
+                  other_play=bool(cfg.other_play), role_frame=bool(cfg.get("role_frame", False)))
     return world, evaluation
 
 
@@ -304,6 +304,18 @@ def _check_world(cfg: DictConfig, domain: str, opponent: str, env_params: Any) -
         from sidewalk.symmetry import check_mirror_symmetric
 
         check_mirror_symmetric(layout)
+    if cfg.get("role_frame", False):  # a run written before the key played in the world's frame
+        if opponent != "self":
+            raise ValueError(f"role_frame=true trains self-play partners: use opponent=self, not opponent={opponent}")
+        from sidewalk.symmetry import role_map
+
+        unmapped = [agent for agent in range(n_agents) if role_map(domain, env_params, 0, agent) is None]
+        if unmapped:
+            raise ValueError(
+                f"role_frame=true needs every agent's role to map onto agent 0's (a two-agent layout a half turn maps "
+                f"onto itself, or roles drawn alike); env.layout={cfg.env.layout} maps agents {unmapped} onto none: "
+                "use env.layout=sidewalk"
+            )
     return n_agents
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 # Top-level keys: an older run without ``shield`` trained unshielded, so it is a ``shield=false`` run.
-LATER_KEYS: dict[str, Any] = {"shield": False, "other_play": False}
+LATER_KEYS: dict[str, Any] = {"shield": False, "other_play": False, "role_frame": False}
 # Env keys, per domain (env.domain): the safety cost of runs written before it was counted, the observed route, the
 # starts' and goals' jitter.
 LATER_ENV_KEYS: dict[str, dict[str, Any]] = {

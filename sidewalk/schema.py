@@ -136,6 +136,7 @@ class ExperimentSchema:
     torch_threads: int = 1
     shield: bool = False
     other_play: bool = False
+    role_frame: bool = False
     plots: bool = True
 
 

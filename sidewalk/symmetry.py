@@ -16,6 +16,7 @@ from typing import Any
 
 import torch
 
+from sidewalk.envs import core_class
 from sidewalk.envs.grid import VECTOR_FIELDS
 from sidewalk.envs.unicycle import OBSERVATION_FIELDS
 
@@ -116,3 +117,44 @@ def check_mirror_symmetric(layout: Any) -> None:
             f"start and goal onto its own; this {name} does not (its walls or an agent's start or goal are off the "
             "centre line): use env.layout=sidewalk, or a random layout with symmetric walls"
         )
+
+
+def role_map(domain: str, env_params: Any, trained: int, plays: int) -> str | None:
+    """How a learner trained as agent ``trained`` sees the game of agent ``plays``: ``"same"`` (the roles are drawn
+    alike: a random layout, or the same agent), ``"half_turn"`` (a two-agent layout a half turn maps onto itself
+    and ``trained``'s start and goal onto ``plays``'s), or None (no map)."""
+    if trained == plays:
+        return "same"
+    layout = core_class(domain).layout_for(env_params)
+    layout = getattr(layout, "nominal", layout)  # jittered starts: their symmetry is the nominal layout's
+    if not layout.fixed:
+        return "same"
+    if layout.n_agents != 2:
+        return None
+    if domain == "discrete":
+        def turn(cell):
+            return (layout.rows - 1 - cell[0], layout.cols - 1 - cell[1])
+
+        symmetric = {turn(cell) for cell in layout.blocked} == set(layout.blocked)
+        maps = turn(layout.starts[trained]) == layout.starts[plays] and turn(layout.goals[trained]) == layout.goals[plays]
+    else:
+        def turn(point):
+            return (layout.length_m - point[0], layout.width_m - point[1])
+
+        def close(a, b):
+            return all(math.isclose(x, y, abs_tol=1e-9) for x, y in zip(a, b))
+
+        boxes = {(round(x0, 9), round(y0, 9), round(x1, 9), round(y1, 9)) for x0, y0, x1, y1 in layout.boxes}
+        turned = {
+            (round(layout.length_m - x1, 9), round(layout.width_m - y1, 9),
+             round(layout.length_m - x0, 9), round(layout.width_m - y0, 9))
+            for x0, y0, x1, y1 in layout.boxes
+        }
+        heading_gap = (layout.headings[trained] + math.pi - layout.headings[plays]) % (2 * math.pi)
+        symmetric = boxes == turned
+        maps = (
+            close(turn(layout.starts[trained]), layout.starts[plays])
+            and close(turn(layout.goals[trained]), layout.goals[plays])
+            and min(heading_gap, 2 * math.pi - heading_gap) < 1e-9
+        )
+    return "half_turn" if symmetric and maps else None

@@ -41,7 +41,7 @@ class World:
     noise, rewards, jitter bounds, ...), the ``opponent`` as an experiment names it (a registered opponent or
     partner, built with ``opponent_params``; ``centralized`` or ``self`` where the learner plays every agent), the
     learner's agent ``ego`` and whether its episode ends with it (``end_on_ego_done``), the safety ``shield`` and
-    self-play's ``other_play``."""
+    self-play's ``other_play`` and ``role_frame`` (``sidewalk.views.SelfPlayView``)."""
 
     domain: str
     env_params: Any  # DiscreteParams | ContinuousParams
@@ -51,6 +51,7 @@ class World:
     end_on_ego_done: bool = False
     shield: bool = False
     other_play: bool = False
+    role_frame: bool = False
 
     def __post_init__(self) -> None:
         params_class = core_class(self.domain).Params
@@ -88,6 +89,7 @@ class World:
         return view_for_opponent(
             self.core(num_envs, seed, device), self.opponent, self.ego, shield=self.shield,
             end_on_ego_done=self.end_on_ego_done, opponent_kwargs=self.opponent_params, other_play=self.other_play,
+            role_frame=self.role_frame,
         )
 
     def stand_in(self) -> World:

@@ -149,3 +149,12 @@ def test_one_action_of_both_agents_in_the_role_frame_moves_them_apart():
 def test_the_role_frame_is_refused_where_a_role_has_no_map():
     with pytest.raises(ValueError, match="role_frame=true needs every agent's role to map onto agent 0's"):
         SelfPlayView(DiscreteSidewalkEnv(4, seed=0, layout="door", n_agents=3), role_frame=True)
+
+
+def test_the_role_frame_needs_self_play_and_roles_a_half_turn_maps_and_reaches_the_world():
+    with pytest.raises(ValueError, match="role_frame=true trains self-play partners: use opponent=self"):
+        validate(compose_config(["role_frame=true"]))
+    with pytest.raises(ValueError, match=r"maps agents \[1, 2\] onto none"):
+        validate(compose_config(["role_frame=true", "opponent=self", "algo=iql", "env.layout=door", "env.n_agents=3"]))
+    world = validate(compose_config(["role_frame=true", "opponent=self", "algo=iql"])).world
+    assert world.role_frame and world.make(2)._turned.tolist() == [False, True]

@@ -145,7 +145,7 @@ def test_world_fields_are_the_experiment_s_world_settings():
     """What config.validate reads into a World is every setting of one (a new World field must reach training)."""
     fields = {f.name for f in dataclasses.fields(World)}
     assert fields == {"domain", "env_params", "opponent", "opponent_params", "ego", "end_on_ego_done", "shield",
-                      "other_play"}
+                      "other_play", "role_frame"}
 
 
 # Written at da5af71, before the World: a DQN run folder (config.yaml, policy.pt, summary.json, ...) and a Minari

@@ -108,7 +108,7 @@ def world_kwargs(world: World) -> dict[str, Any]:
     """The ``gymnasium.make`` keywords of ``world`` (``sidewalk.world.World``): its partner and view, and every core
     env parameter; ``gymnasium.make(ENV_IDS[world.domain], **world_kwargs(world))`` plays its worlds. A world the
     face cannot show (self-play, other-play) raises naming it."""
-    if world.opponent == "self" or world.other_play:
+    if world.opponent == "self" or world.other_play or world.role_frame:
         raise ValueError(f"the Gymnasium face shows one learner's view; opponent={world.opponent!r} "
                          f"other_play={world.other_play} is every agent's (sidewalk.interop.pettingzoo)")
     view = {"opponent": world.opponent, "shield": world.shield}

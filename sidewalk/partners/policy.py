@@ -24,7 +24,6 @@ what happens to crashed agents and how far starts and goals were moved may diffe
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,10 +31,9 @@ from typing import Any
 import torch
 from tensordict import TensorDict, TensorDictBase
 
-from sidewalk.envs import core_class
 from sidewalk.envs.base import AGENT_GROUP, SidewalkEnvBase
 from sidewalk.opponents.base import ACTION_KEY, Opponent, env_domain
-from sidewalk.symmetry import turn_action, turn_observation
+from sidewalk.symmetry import role_map, turn_action, turn_observation
 from sidewalk.world import MAY_DIFFER, World
 
 OBSERVATION_KEY = (AGENT_GROUP, "observation")
@@ -61,7 +59,10 @@ class Partner:
 
     @property
     def ego(self) -> int | None:
-        """The agent it played (single-agent learners); None: every agent."""
+        """The agent it played (single-agent learners; self-play in the role frame sees every game as agent 0);
+        None: every agent."""
+        if self.world.role_frame:
+            return 0
         return None if self.plays_every_agent else self.world.ego
 
     @property
@@ -141,45 +142,20 @@ def check_partner_of(experiment: Any) -> Partner | None:
     return check_partner(experiment.world.opponent_params["path"], experiment.world)
 
 
-def role_map(domain: str, env_params: Any, trained: int, plays: int) -> str | None:
-    """How a learner trained as agent ``trained`` sees the game of agent ``plays``: ``"same"`` (the roles are drawn
-    alike: a random layout, or the same agent), ``"half_turn"`` (a two-agent layout a half turn maps onto itself
-    and ``trained``'s start and goal onto ``plays``'s), or None (no map)."""
-    if trained == plays:
-        return "same"
-    layout = core_class(domain).layout_for(env_params)
-    layout = getattr(layout, "nominal", layout)  # jittered starts: their symmetry is the nominal layout's
-    if not layout.fixed:
-        return "same"
-    if layout.n_agents != 2:
-        return None
-    if domain == "discrete":
-        def turn(cell):
-            return (layout.rows - 1 - cell[0], layout.cols - 1 - cell[1])
+def partner_policy(partner: Partner, device: str | torch.device = "cpu", sample: bool = False) -> tuple[Any, Any]:
+    """The partner's policy module (its evaluation policy, or its collection policy with ``sample``), built on one
+    world of its own (so every spec is the one training saw), and the joint-action decoder of a centralized grid
+    partner (else None): a saved policy replayed is its World plus its learner."""
+    from torchrl.envs import RewardSum, TransformedEnv
 
-        symmetric = {turn(cell) for cell in layout.blocked} == set(layout.blocked)
-        maps = turn(layout.starts[trained]) == layout.starts[plays] and turn(layout.goals[trained]) == layout.goals[plays]
-    else:
-        def turn(point):
-            return (layout.length_m - point[0], layout.width_m - point[1])
+    from sidewalk.registry import LEARNERS
 
-        def close(a, b):
-            return all(math.isclose(x, y, abs_tol=1e-9) for x, y in zip(a, b))
-
-        boxes = {(round(x0, 9), round(y0, 9), round(x1, 9), round(y1, 9)) for x0, y0, x1, y1 in layout.boxes}
-        turned = {
-            (round(layout.length_m - x1, 9), round(layout.width_m - y1, 9),
-             round(layout.length_m - x0, 9), round(layout.width_m - y0, 9))
-            for x0, y0, x1, y1 in layout.boxes
-        }
-        heading_gap = (layout.headings[trained] + math.pi - layout.headings[plays]) % (2 * math.pi)
-        symmetric = boxes == turned
-        maps = (
-            close(turn(layout.starts[trained]), layout.starts[plays])
-            and close(turn(layout.goals[trained]), layout.goals[plays])
-            and min(heading_gap, 2 * math.pi - heading_gap) < 1e-9
-        )
-    return "half_turn" if symmetric and maps else None
+    view = partner.world.stand_in().make(1, seed=0, device=device)
+    algo = LEARNERS[partner.algo_name](partner.algo_config, TransformedEnv(view, RewardSum()), device=device)
+    algo.load_policy_state_dict(partner.state)
+    policy = algo.collection_policy() if sample else algo.evaluation_policy()
+    centralized_grid = partner.world.opponent == "centralized" and partner.world.domain == "discrete"
+    return policy, view.decode_action if centralized_grid else None
 
 
 class PolicyOpponent(Opponent):
@@ -208,7 +184,7 @@ class PolicyOpponent(Opponent):
         self.partner = check_partner(path, here, self.controlled)
         self.sample = sample
         self.in_keys = [OBSERVATION_KEY]
-        self._policy, self._decode = self._rebuild(self.partner, env, sample)
+        self._policy, self._decode = partner_policy(self.partner, env.device, sample)
         self._maps = [role_map(self.partner.world.domain, env.params, self.partner.ego, agent) if self.partner.ego is not None
                       else "same" for agent in self.controlled]
         # A partner trained on another observation kind (a grid vector in an image world) sees its own, from the env.
@@ -216,21 +192,6 @@ class PolicyOpponent(Opponent):
         self._own_observation = own if own != getattr(env.params, "observation", None) else None
         if self._own_observation is not None:
             self.in_keys = list(type(env).PARTNER_OBSERVATION_KEYS)
-
-    @staticmethod
-    def _rebuild(partner: Partner, env: SidewalkEnvBase, sample: bool):
-        """The partner's policy module, built on one world of its own (so every spec is the one training saw), and
-        the joint-action decoder of a centralized partner: a saved policy replayed is its World plus its learner."""
-        from torchrl.envs import RewardSum, TransformedEnv
-
-        from sidewalk.registry import LEARNERS
-
-        view = partner.world.stand_in().make(1, seed=0, device=env.device)
-        algo = LEARNERS[partner.algo_name](partner.algo_config, TransformedEnv(view, RewardSum()), device=env.device)
-        algo.load_policy_state_dict(partner.state)
-        policy = algo.collection_policy() if sample else algo.evaluation_policy()
-        centralized_grid = partner.world.opponent == "centralized" and partner.world.domain == "discrete"
-        return policy, view.decode_action if centralized_grid else None
 
     @torch.no_grad()
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:

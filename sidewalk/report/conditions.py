@@ -137,6 +137,8 @@ def _value(key: str, value: Any, domain: str) -> str:
         return "shielded" if value else "unshielded"
     if key == "other_play":
         return "Other-Play" if value else "self-play"
+    if key == "role_frame":
+        return "role frame" if value else "world frame"
     short = key.split(".", 1)[1] if key.startswith(("env.", "algo.")) else key
     return f"{short}={list(value) if isinstance(value, tuple) else value}"
 
@@ -153,7 +155,7 @@ def varying_keys(conditions: Sequence[Condition], ignore: Iterable[str] = ()) ->
 def describe(condition: Condition, keys: Sequence[str], limit: int | None = 4) -> str:
     """``condition`` told by its values of ``keys`` (opponent first, then shield, noise, reward, the rest), at most
     ``limit`` of them and then how many more; keys the condition does not have are left out."""
-    order = ["opponent.name", "other_play", "shield", "reward.shaped_agents", "noise", "reward.name", "reward.alpha"]
+    order = ["opponent.name", "other_play", "role_frame", "shield", "reward.shaped_agents", "noise", "reward.name", "reward.alpha"]
     ranked = sorted(
         (k for k in keys if k in condition.flat),
         key=lambda k: (order.index(k) if k in order else len(order), k),

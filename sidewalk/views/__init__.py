@@ -53,7 +53,7 @@ from sidewalk.views.selfplay import SelfPlayView
 
 VIEW_KINDS = ("ego", "centralized", "self", "all")
 # What each kind of view takes beyond the env, ego and shield: the settings make_view passes on.
-VIEW_SETTINGS = {"ego": ("end_on_ego_done", "opponent_kwargs"), "centralized": (), "self": ("other_play",), "all": ()}
+VIEW_SETTINGS = {"ego": ("end_on_ego_done", "opponent_kwargs"), "centralized": (), "self": ("other_play", "role_frame"), "all": ()}
 
 
 def view_for_opponent(
@@ -65,22 +65,24 @@ def view_for_opponent(
     end_on_ego_done: bool = False,
     opponent_kwargs: Mapping[str, Any] | None = None,
     other_play: bool = False,
+    role_frame: bool = False,
 ) -> EnvBase:
     """The view a learner plays ``env`` through, for ``opponent`` as an experiment names it (``opponent=``):
-    ``"centralized"`` (``CentralizedView``), ``"self"`` (``SelfPlayView``, with ``other_play``), or else an
+    ``"centralized"`` (``CentralizedView``), ``"self"`` (``SelfPlayView``, with ``other_play`` and ``role_frame``), or else an
     ``EgoView`` of agent ``ego`` (with ``end_on_ego_done``) against ``opponent`` -- a registered name, built with
     ``opponent_kwargs``, or an ``Opponent`` on ``env`` playing every other agent. ``shield=True`` shields the
     learner's actions.
 
     The ego's settings go unread where the learner plays every agent (a config carries them whatever its choice);
-    ``other_play`` for any view but self-play is an error.
+    ``other_play`` or ``role_frame`` for any view but self-play is an error.
     """
-    if other_play and opponent != "self":
-        raise ValueError(f"other_play=True trains self-play partners: use opponent='self', not opponent={opponent!r}")
+    for name, value in (("other_play", other_play), ("role_frame", role_frame)):
+        if value and opponent != "self":
+            raise ValueError(f"{name}=True trains self-play partners: use opponent='self', not opponent={opponent!r}")
     if opponent == "centralized":
         return CentralizedView(env, shield=shield)
     if opponent == "self":
-        return SelfPlayView(env, shield=shield, other_play=other_play)
+        return SelfPlayView(env, shield=shield, other_play=other_play, role_frame=role_frame)
     return EgoView(
         env, opponent=opponent, ego=ego, end_on_ego_done=end_on_ego_done, opponent_kwargs=opponent_kwargs,
         shield=shield,
@@ -97,7 +99,7 @@ def make_view(
 ) -> EnvBase:
     """The view ``kind`` of ``env`` (``view_for_opponent`` builds it): ``"ego"`` (``EgoView``; ``opponent``
     defaults to ``"random"``; ``settings``: ``end_on_ego_done``, ``opponent_kwargs``), ``"centralized"``
-    (``CentralizedView``), ``"self"`` (``SelfPlayView``; ``settings``: ``other_play``) or ``"all"`` (the
+    (``CentralizedView``), ``"self"`` (``SelfPlayView``; ``settings``: ``other_play``, ``role_frame``) or ``"all"`` (the
     multi-agent core env itself).
 
     ``opponent`` and ``ego`` (default 0) apply only to ``"ego"``; giving either to another view is an error, as is

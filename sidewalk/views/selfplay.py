@@ -142,7 +142,7 @@ class SelfPlayView(_SidewalkView):
 
     def _role_turns(self) -> list[bool]:
         """Whether each agent plays through the half turn to see the game as agent 0 does (``role_frame``)."""
-        from sidewalk.partners.policy import role_map
+        from sidewalk.symmetry import role_map
 
         maps = [role_map(self.domain, self.core.params, 0, agent) for agent in range(self.core.n_agents)]
         if None in maps:
