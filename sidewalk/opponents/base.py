@@ -212,11 +212,12 @@ def available_opponents(domain: str | None = None, scripted_only: bool = False) 
 
 
 def make_opponent(
-    name: str, env: SidewalkEnvBase, controlled: Sequence[int] = (1,), ego: int | None = 0, **kwargs: Any
+    name: str, env: SidewalkEnvBase, /, controlled: Sequence[int] = (1,), ego: int | None = 0, **kwargs: Any
 ) -> Opponent:
     """Build the opponent registered as ``name`` for ``env``, playing the ``controlled`` agents against ``ego``
-    (``"policy"``: a learned partner, ``path=RUN_DIR``). Raises ``ValueError`` for an unknown name (listing the
-    valid ones) or an opponent that does not play the env's domain (listing those that do).
+    (``"policy"``: a learned partner, ``path=RUN_DIR``; ``name`` and ``env`` are positional only, so that an opponent
+    may take a setting called ``name``: ``make_opponent("zoo", env, name="keep_left")``). Raises ``ValueError`` for an
+    unknown name (listing the valid ones) or an opponent that does not play the env's domain (listing those that do).
 
     On a replicated env (``env.replicas`` > 1) every replica's worlds are played as a lone env of its seed would
     play them: by one opponent for all worlds when the class needs no instance per replica and is batch-invariant
