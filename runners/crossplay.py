@@ -9,9 +9,10 @@
 
 A RUN_DIR is a run folder with policy.pt, or a sweep folder standing for every run in it. Partners (default
 scripted,rows): scripted opponents by name, `scripted` (every one of the rows' domain), `rows` (every row's run),
-`heldout` (the held-out partner population: the ad-hoc score, docs/guide/adhoc.md), run or sweep folders, and a
-scripted opponent with settings, NAME:KEY=VALUE[:KEY=VALUE...] (dijkstra:tie_break=progress: version 1). A row
-plays the agent it trained as; the partner plays every other agent; both act greedily.
+`heldout` (the held-out partner population: the ad-hoc score, docs/guide/adhoc.md), `zoo:NAME` (a partner of the
+zoo by name: `sidewalk-partners list`), run or sweep folders, and a scripted opponent with settings,
+NAME:KEY=VALUE[:KEY=VALUE...] (dijkstra:tie_break=progress: version 1). A row plays the agent it trained as; the
+partner plays every other agent; both act greedily.
 Every cell plays one episode in each of --episodes worlds seeded --seed + 1000003 (the stream a run of that seed
 is evaluated on), in the first row's training world at --noise (default: the rows' training noise when they agree),
 with --nominal from the scenario's own starts and goals (eval=nominal) whatever protocol the rows trained under.
@@ -44,8 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--partners",
         default="scripted,rows",
         help="comma-separated: scripted opponents' names (with settings: NAME:KEY=VALUE[:KEY=VALUE...]), "
-        "'scripted', 'rows', 'heldout' (the held-out partner population), run or sweep folders "
-        "(default: scripted,rows)",
+        "'scripted', 'rows', 'heldout' (the held-out partner population), 'zoo:NAME' (a zoo partner), run or sweep "
+        "folders (default: scripted,rows)",
     )
     parser.add_argument("--out", help="output folder (required unless --redraw)")
     parser.add_argument("--episodes", type=int, default=256, help="episodes per cell, one per world (default 256)")

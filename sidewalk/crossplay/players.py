@@ -19,6 +19,7 @@ from sidewalk.partners.policy import (
 SCRIPTED = "scripted"  # --partners shorthand: the domain's scripted opponents
 ROWS = "rows"  # --partners shorthand: every row's run folder
 HELDOUT = "heldout"  # --partners shorthand: the held-out partner population of the rows' domain (ad-hoc teamwork)
+ZOO = "zoo"  # --partners zoo:NAME: a partner of the zoo by name (sidewalk.partners.zoo)
 DEFAULT_PARTNERS = (SCRIPTED, ROWS)
 # The CSV's columns, in order (see ``crossplay``'s docstring).
 
@@ -47,7 +48,7 @@ class Player:
 class Column:
     """A partner: a scripted opponent (``player`` None) or a learned policy."""
 
-    name: str  # the opponent's name, or the run folder as given; a held-out member: "heldout:<member>"
+    name: str  # the opponent's name, or the run folder as given; "heldout:<member>" a held-out member, "zoo:<name>"
     player: Player | None = None
     opponent: str = ""  # a scripted partner's registered opponent, when ``name`` is not one
     params: dict[str, Any] = field(default_factory=dict)  # ... and its settings
@@ -59,7 +60,7 @@ class Column:
 
     @property
     def label(self) -> str:
-        if self.heldout:
+        if self.heldout or self.name.startswith(f"{ZOO}:"):  # a partner named by its population or zoo name
             return self.name.split(":", 1)[1]
         return self.name if self.player is None else self.player.label
 
@@ -161,23 +162,42 @@ def heldout_columns(domain: str, known: dict[Path, Player]) -> list[Column]:
 def heldout_column(domain: str, name: str, member: Any, known: dict[Path, Player] | None = None) -> Column:
     """Held-out ``member`` (a ``population.Member``) named ``name`` as the column ``heldout:<name>``; a learned one's
     ``Player`` taken from, or added to, ``known``."""
+    return member_column(f"{HELDOUT}:{name}", domain, member, known, heldout=True)
+
+
+def zoo_column(domain: str, name: str, known: dict[Path, Player] | None = None) -> Column:
+    """The zoo partner ``name`` (``sidewalk.partners.zoo``) as the column ``zoo:<name>``; ``CrossplayError`` naming
+    the domain's zoo partners for a name that is not one of them."""
+    from sidewalk.partners.zoo import partner
+
+    try:
+        entry = partner(name, domain, what=f"partner {ZOO}:NAME")
+    except ValueError as error:
+        raise CrossplayError(str(error)) from None
+    return member_column(f"{ZOO}:{entry.name}", domain, entry.member, known)
+
+
+def member_column(column_name: str, domain: str, member: Any, known: dict[Path, Player] | None = None,
+                  heldout: bool = False) -> Column:
+    """A population ``member`` as the column ``column_name``: a scripted one its opponent and settings, a learned
+    one's ``Player`` taken from, or added to, ``known``."""
     kwargs = member.kwargs(domain)
     if member.opponent != "policy":
-        return Column(f"{HELDOUT}:{name}", opponent=member.opponent, params=kwargs, heldout=True)
+        return Column(column_name, opponent=member.opponent, params=kwargs, heldout=heldout)
     known = {} if known is None else known
     path = Path(kwargs["path"])
     player = known.get(path.resolve()) or load_player(path)
     known[path.resolve()] = player
-    return Column(f"{HELDOUT}:{name}", player, heldout=True)
+    return Column(column_name, player, heldout=heldout)
 
 
 def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], domain: str) -> list[Column]:
     """The columns of the matrix from ``--partners`` (a comma-separated string or a list; default
     ``scripted,rows``): a scripted opponent's name, ``scripted`` (every scripted opponent of ``domain``), ``rows``
-    (every row's run), ``heldout`` (the held-out partner population: the ad-hoc score's partners), a run or sweep
-    folder (its learned policies), or a scripted opponent with settings, ``NAME:KEY=VALUE[:KEY=VALUE...]``
-    (``dijkstra:tie_break=progress``: the version-1 Dijkstra agent). Rows' folders given again share their
-    ``Player``. Raises ``CrossplayError`` for an unknown name or setting, or an opponent of another domain."""
+    (every row's run), ``heldout`` (the held-out partner population: the ad-hoc score's partners), ``zoo:NAME`` (a
+    partner of the zoo, ``sidewalk.partners.zoo``), a run or sweep folder (its learned policies), or a scripted
+    opponent with settings, ``NAME:KEY=VALUE[:KEY=VALUE...]`` (``dijkstra:tie_break=progress``: the version-1
+    Dijkstra agent). Rows' folders given again share their ``Player``. Raises ``CrossplayError`` for an unknown name or setting, or an opponent of another domain."""
     from sidewalk.opponents.base import available_opponents
     from sidewalk.registry import OPPONENTS
 
@@ -207,6 +227,8 @@ def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], d
         elif item == HELDOUT:
             for column in heldout_columns(domain, known):
                 add(column)
+        elif item.startswith(f"{ZOO}:"):
+            add(zoo_column(domain, item.split(":", 1)[1], known))
         elif item in scripted:
             add(Column(item))
         elif ":" in item and item.split(":", 1)[0] in scripted:
@@ -224,7 +246,7 @@ def resolve_partners(spec: str | Sequence[str] | None, rows: Sequence[Player], d
         else:
             raise CrossplayError(
                 f"unknown partner {item!r}: not a scripted opponent of the {domain} domain "
-                f"({', '.join(scripted)}), not {SCRIPTED!r}, {ROWS!r} or {HELDOUT!r}, and not a folder"
+                f"({', '.join(scripted)}), not {SCRIPTED!r}, {ROWS!r}, {HELDOUT!r} or {ZOO}:NAME, and not a folder"
             )
     return columns
 
