@@ -17,7 +17,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMANDS = ("sidewalk-train", "sidewalk-report", "sidewalk-render", "sidewalk-crossplay", "sidewalk-baselines",
-            "sidewalk-bench")
+            "sidewalk-bench", "sidewalk-partners")
 PURELIB = "import sysconfig; print(sysconfig.get_paths()['purelib'])"  # a venv's own site-packages
 PROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
 # Names on PyPI that are other projects: `pip install sidewalk` installs "The Simple Activity Aggregator" (2013).
