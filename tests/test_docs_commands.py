@@ -49,6 +49,7 @@ RUNNER_BUDGET = {
     "report.py": {"--resamples": "100"},
     "render.py": {},
     "baselines.py": {"--seeds": "0", "--episodes": "1"},
+    "partners.py": {},  # list and show print, export writes one small file: seconds
     "bench.py env": {},  # 4096 worlds is what it shows; the section has no flag for its timed seconds
     "bench.py": {"--num-envs": "8", "--threads": "1"},  # --seconds is a section's flag, after a section's name
     "bench.py scenarios": {"--agents": "2", "--seconds": "0.05", "--repeats": "1", "--num-envs": "8"},
@@ -77,6 +78,8 @@ FILL = {
         {"'results/runs/<RUN_DIR>'": "runs/multiagent-9"},
     "python -m sidewalk.reference collect results/sweeps/reference/seeds0-4 results/reference/runs/seeds0-4":
         {"results/sweeps/reference/seeds0-4": "sweeps/README-8"},
+    "python runners/crossplay.py RUN_DIR --partners zoo:discrete/vdn_seed0,zoo:keep_left --out results/zoo-crossplay":
+        {"RUN_DIR": "runs/partners-4"},
 }
 # A command that continues a run needs the run: trained first, at the same budget, in the folder it names (emptied
 # first: two pages continue results/runs/mine, one a single run, one a group of five).
