@@ -29,7 +29,8 @@ DOMAIN_WORDS = {"discrete": "grid", "continuous": "continuous (unicycle)"}
 SPLIT_WORDS = {"training": "training (`opponent=population` draws it)",
                "heldout": "held out (`--partners heldout`: no learner meets it in training)"}
 WITH = ("itself", "the scripted partners", "learners")  # whom a card's scores are with, each said or not measured
-TEAM_SUCCESS = "Team success: the share of episodes in which every agent reached its goal; one value a seed of the other side."
+TEAM_SUCCESS = ("Team success: the share of episodes in which every agent reached its goal; one value a seed, the other "
+                "side's (a learner's runs) or the evaluation's (with itself).")
 SCORES_HEADER = ("| with | domain | noise | team success | seeds | episodes | source |",
                  "| --- | --- | --- | --- | --- | --- | --- |")
 
