@@ -86,7 +86,8 @@ class Experiment:
         """The evaluation protocol as ``summary.json`` records it: its name, the bounds of this domain, and whether
         training drew its worlds alike."""
         bounds = {name: getattr(self.evaluation, name) for name in PROTOCOL_ENV_FIELDS[self.world.domain]}
-        return {"name": self.evaluation.name, **bounds, "train_alike": self.evaluation.train_alike}
+        return {"name": self.evaluation.name, **bounds, "train_alike": self.evaluation.train_alike,
+                "epsilon": self.evaluation.epsilon}
 
 
 def protocol_env_params(protocol: EvalSchema, domain: str, env_params: Any) -> Any:
@@ -267,6 +268,9 @@ def _check_protocol(cfg: DictConfig, domain: str, env_params: Any) -> EvalSchema
     bound that keeps every agent off them), before the training world's check: with ``eval.train_alike`` training
     takes the same bounds, and the user gave them as ``eval.*``."""
     protocol = OmegaConf.to_object(cfg.eval) if OmegaConf.get_type(cfg.eval) is EvalSchema else EvalSchema(**cfg.eval)
+    check_range("eval.epsilon", protocol.epsilon, 0.0, 1.0)
+    if protocol.epsilon == 1.0:  # check_range's bound is closed; a policy that never acts is no evaluation of it
+        raise ValueError("eval.epsilon=1.0 is out of range; valid: [0.0, 1.0)")
     try:
         core_class(domain).layout_for(protocol_env_params(protocol, domain, env_params))
     except ValueError as error:

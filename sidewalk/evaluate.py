@@ -91,6 +91,7 @@ def run_episodes(
     record_trajectories: int = 0,
     deterministic: bool = True,
     one_world: Callable[[], EnvBase] | None = None,
+    epsilon: float = 0.0,
 ) -> EpisodeRecord:
     """Play one episode in every world of ``env`` (an ego or centralized view, B worlds = B episodes).
 
@@ -103,17 +104,53 @@ def run_episodes(
     alike and ``policy`` is deterministic, that world plays the episode alone, and if neither its reset nor a step
     drew a random number, every world of ``env`` plays it too: it is counted for all of them (the record is the one
     the B worlds give). At the first draw the B worlds play instead, as without ``one_world``.
+
+    ``epsilon`` > 0 (an evaluation protocol's ``eval.epsilon``): at every step each entry of the learner's action (each
+    agent's, in a self-play view; the joint action in a centralized one) is replaced by a uniform random action with
+    this probability, drawn from a generator seeded by ``seed``, as the DQN literature evaluates (Mnih et al. 2015 at
+    0.05): a greedy pair of one policy otherwise mirrors itself in a standoff to the time limit.
     """
+    if not 0.0 <= epsilon < 1.0:
+        raise ValueError(f"epsilon={epsilon!r} is out of range; valid: [0, 1)")
     if seed is not None:
         env.set_seed(seed)
     td = env.reset()
-    if one_world is not None and seed is not None and deterministic and policy is not None and _worlds_alike(td):
+    explore = _Exploration(env, epsilon, seed) if epsilon > 0 and policy is not None else None
+    if (one_world is not None and seed is not None and deterministic and policy is not None and explore is None
+            and _worlds_alike(td)):
         record = _played_once(one_world, policy, seed, td, record_trajectories, env.device)
         if record is not None:
             return record
     tally = _EpisodeTally.begin(env, td.get("world"), record_trajectories)
-    _play(env, policy, td, tally, deterministic)
+    _play(env, policy, td, tally, deterministic, explore=explore)
     return tally.record(ego=getattr(env, "ego", None))
+
+
+class _Exploration:
+    """``epsilon``-greedy on the learner's action key of ``env``: each entry replaced by a uniform random action with
+    probability ``epsilon``, drawn from its own generator (seeded by the evaluation's seed), so the env's draws stay
+    the same as a greedy evaluation's."""
+
+    def __init__(self, env: EnvBase, epsilon: float, seed: int | None) -> None:
+        self.epsilon = epsilon
+        self.key = env.action_key
+        self.spec = env.full_action_spec[self.key]
+        self.generator = torch.Generator(device=env.device)
+        self.generator.manual_seed(0 if seed is None else seed)
+
+    def __call__(self, td: TensorDictBase) -> TensorDictBase:
+        action = td.get(self.key)
+        continuous = action.dtype.is_floating_point  # an action is its last axis (acceleration, turn rate)
+        chosen = action.shape[:-1] if continuous else action.shape
+        explore = torch.rand(chosen, generator=self.generator, device=action.device) < self.epsilon
+        if continuous:  # uniform within the bounds
+            low, high = self.spec.space.low, self.spec.space.high
+            uniform = low + (high - low) * torch.rand(action.shape, generator=self.generator, device=action.device)
+            explore = explore.unsqueeze(-1)
+        else:
+            uniform = torch.randint(0, self.spec.space.n, action.shape, generator=self.generator, device=action.device)
+        td.set(self.key, torch.where(explore, uniform, action))
+        return td
 
 
 def _play(
@@ -123,6 +160,7 @@ def _play(
     tally: _EpisodeTally,
     deterministic: bool,
     draws: _RandomDraws | None = None,
+    explore: _Exploration | None = None,
 ) -> bool:
     """Step ``env`` from its reset ``td`` until every world's episode has ended, each step added to ``tally``; with
     ``draws``, stop at the first step that drew a random number and return False."""
@@ -132,6 +170,8 @@ def _play(
                 td = env.rand_action(td)
             else:
                 td = act_on_distinct(policy, td, ~tally.finished) if deterministic else policy(td)
+                if explore is not None:
+                    td = explore(td)
             td = env.step(td)
             if draws is not None and draws.happened():
                 return False
@@ -476,10 +516,12 @@ def evaluate(
     seed: int | None = None,
     deterministic: bool = True,
     one_world: Callable[[], EnvBase] | None = None,
+    epsilon: float = 0.0,
 ) -> dict[str, float]:
-    """Metrics of one episode in each of ``env``'s worlds under ``policy`` (see ``summarize``; ``deterministic``
-    and ``one_world`` as in ``run_episodes``)."""
-    return summarize(run_episodes(env, policy, seed=seed, deterministic=deterministic, one_world=one_world))
+    """Metrics of one episode in each of ``env``'s worlds under ``policy`` (see ``summarize``; ``deterministic``,
+    ``one_world`` and ``epsilon`` as in ``run_episodes``)."""
+    return summarize(run_episodes(env, policy, seed=seed, deterministic=deterministic, one_world=one_world,
+                                  epsilon=epsilon))
 
 
 def train_metrics(batch: TensorDictBase, ego: int | None) -> dict[str, float]:

@@ -250,7 +250,7 @@ class Trial:
             eval_started = time.perf_counter()
             learner = parts.learners.learner(replica)
             metrics = evaluate(run.eval_env, learner.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET,
-                               one_world=lambda: make_eval_view(exp, worlds=1))
+                               one_world=lambda: make_eval_view(exp, worlds=1), epsilon=exp.evaluation.epsilon)
             eval_ended = time.perf_counter()
             restore_rng(rng)
             state.keep_if_best(metrics, lambda: self._policy_state(parts, replica))
@@ -335,7 +335,7 @@ class Trial:
         if not final:  # no periodic evaluation (eval_every=0): the final one is also the best
             learner = parts.learners.learner(replica)
             final = evaluate(run.eval_env, learner.evaluation_policy(), seed=exp.seed + EVAL_SEED_OFFSET,
-                             one_world=lambda: make_eval_view(exp, worlds=1))
+                             one_world=lambda: make_eval_view(exp, worlds=1), epsilon=exp.evaluation.epsilon)
             state.keep_if_best(final, lambda: self._policy_state(parts, replica))
         training_cost = rows[-1].get("train/cumulative_cost", 0.0) if rows else 0.0
         frames = state.iteration * parts.frames_per_batch
@@ -374,7 +374,7 @@ class Trial:
         seed = exp.seed + ABSOLUTE_SEED_OFFSET
         env = exp.eval_world.make(ABSOLUTE_EPISODES * exp.eval_episodes, seed, exp.device)
         metrics = evaluate(env, learner.evaluation_policy(), seed=seed,
-                           one_world=lambda: exp.eval_world.make(1, seed, exp.device))
+                           one_world=lambda: exp.eval_world.make(1, seed, exp.device), epsilon=exp.evaluation.epsilon)
         return {"iteration": best.iteration, "frames": best.iteration * parts.frames_per_batch, **metrics}
 
     def _policy_state(self, parts: Parts, replica: int) -> dict[str, Any]:

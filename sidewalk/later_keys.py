@@ -26,7 +26,7 @@ LATER_OPPONENT_KEYS: dict[str, dict[str, Any]] = {"dijkstra": {"tie_break": "pro
 # The evaluation protocol (eval group) of a run written before protocols existed: the scenario's own worlds.
 NOMINAL_EVAL: dict[str, Any] = {
     "name": "nominal", "start_jitter_rows": 0, "goal_jitter_rows": 0, "start_jitter_cells": 0, "goal_jitter_cells": 0,
-    "start_jitter_m": 0.0, "goal_jitter_m": 0.0, "heading_jitter_rad": 0.0, "train_alike": True,
+    "start_jitter_m": 0.0, "goal_jitter_m": 0.0, "heading_jitter_rad": 0.0, "train_alike": True, "epsilon": 0.0,
 }
 
 

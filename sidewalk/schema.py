@@ -93,7 +93,9 @@ class EvalSchema:
     to a free cell within ``*_jitter_cells`` rows and columns where the walls hold no row move;
     continuous: metres in x and y, and the start heading by up to ``heading_jitter_rad``), so that at noise 0 the
     worlds play different episodes and a success rate is a rate. ``train_alike``: training draws its worlds the same
-    way (the env group's jitter defaults to the protocol's); false keeps training on the env group's own."""
+    way (the env group's jitter defaults to the protocol's); false keeps training on the env group's own.
+    ``epsilon``: the learner acts ε-greedily in evaluation (each agent's action uniform with this probability, from
+    the evaluation's seeded stream; ``sidewalk.evaluate.run_episodes``); 0, the default, is greedy."""
 
     name: str = MISSING
     start_jitter_rows: int = 0
@@ -104,6 +106,7 @@ class EvalSchema:
     goal_jitter_m: float = 0.0
     heading_jitter_rad: float = 0.0
     train_alike: bool = True
+    epsilon: float = 0.0
 
 
 # What a run written before evaluation protocols existed was evaluated on: the scenario's own worlds.

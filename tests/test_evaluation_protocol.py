@@ -210,7 +210,8 @@ def test_a_run_records_its_protocol_its_distinct_episodes_and_its_absolute_metri
           "algo.learning_starts=0", "algo.batch_size=16", "logger=none")
     summary = json.loads((run / "summary.json").read_text())
     assert summary["eval_protocol"] == {"name": "perturbed", "start_jitter_rows": 1, "goal_jitter_rows": 1,
-                                        "start_jitter_cells": 0, "goal_jitter_cells": 0, "train_alike": True}
+                                        "start_jitter_cells": 0, "goal_jitter_cells": 0, "train_alike": True,
+                                        "epsilon": 0.0}
     assert summary["distinct_episodes"] >= 64  # 81 start and goal rows, and the partner's own tie-breaks
     absolute = summary["absolute"]
     assert absolute["episodes"] == 1280 and absolute["iteration"] in (1, 2)

@@ -226,7 +226,8 @@ def _runs_section(conditions: Sequence[Condition], numbers: NumberLog, out: Path
 def protocol_text(flat: dict[str, Any]) -> str:
     """A run's evaluation protocol as the Conditions table names it: ``perturbed (starts ±1, goals ±1 rows)``,
     ``perturbed (starts ±1, goals ±1 cells)``,
-    ``nominal``; ``, trained on fixed starts`` where training did not draw its worlds alike."""
+    ``nominal``; ``, trained on fixed starts`` where training did not draw its worlds alike; ``; ε-greedy at 0.01``
+    where the learner acted ε-greedily in evaluation (``eval.epsilon``)."""
     name = str(flat.get("eval.name", "nominal"))
     if flat.get("env.domain") == "discrete":
         by_unit = []  # "starts ±1, goals ±1 rows", "starts ±1, goals ±1 cells"
@@ -241,6 +242,8 @@ def protocol_text(flat: dict[str, Any]) -> str:
         text = ", ".join(f"{what} ±{float(value):g} {unit}" for what, value, unit in bounds if value)
     if text and not flat.get("eval.train_alike", True):
         text += "; trained on the scenario's own starts"
+    if epsilon := float(flat.get("eval.epsilon", 0.0) or 0.0):
+        text += ("; " if text else "") + f"ε-greedy at {epsilon:g}"
     return f"{name} ({text})" if text else name
 
 
