@@ -682,9 +682,10 @@ def test_the_who_yields_table_reads_each_condition_from_its_seeds(tmp_path):
     greedy = next(row for row in rows if "greedy_worlds=0.25" in row).split(" | ")
     summaries = [json.loads(path.read_text()) for path in sorted(folders[0].glob("seed*/summary.json"))]
     share = np.mean([summary["social/agent1_yields_first"] for summary in summaries])
-    assert greedy[2] == "5" and greedy[4].startswith("1.000 [1.000, 1.000]")  # every seed 1.00 at the end
+    team = [summary["team/success_rate"] for summary in summaries]
+    assert greedy[2] == str(len(summaries)) and greedy[4].startswith(f"{scipy.stats.trim_mean(team, 0.25):.3f} [")
     assert f"agent 1 first {share:.3f}" in greedy[6]
     salsa = [summary["social/salsa_count"] for summary in summaries]
-    assert greedy[7].startswith(f"{np.mean(salsa):.2f} ± {np.std(salsa, ddof=1) / np.sqrt(5):.2f}")
+    assert greedy[7].startswith(f"{np.mean(salsa):.2f} ± {np.std(salsa, ddof=1) / np.sqrt(len(salsa)):.2f}")
     numbers = pd.read_csv(result.out / "report.csv")
     assert set(numbers[numbers.section == "who_yields"].metric) >= {"success_rate", "deadlock_rate", "social/no_yield"}
