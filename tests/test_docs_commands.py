@@ -25,7 +25,6 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from test_docs import FENCE, ROOT, child_env, python_blocks, tail
 
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "docs" / "guide").glob("*.md"))]
@@ -139,21 +138,21 @@ NOT_RUN = {
         ("~12 min at 4096 worlds, and VMAS", "tests/test_multiagent_bench.py"),
     **{command: ("needs BenchMARL (installed apart; not in the dev extras)", "tests/test_benchmarl.py")
        for command in [
-           "python -m sidewalk.interop.benchmarl algorithm=mappo task=sidewalk/door_continuous "
-           "'experiment.loggers=[csv]'",
-           "python -m sidewalk.interop.benchmarl -m algorithm=iql,vdn,qmix task=sidewalk/sidewalk_discrete seed=0,1,2 "
-           "'experiment.loggers=[csv]'",
+           ("python -m sidewalk.interop.benchmarl algorithm=mappo task=sidewalk/door_continuous "
+           "'experiment.loggers=[csv]'"),
+           ("python -m sidewalk.interop.benchmarl -m algorithm=iql,vdn,qmix task=sidewalk/sidewalk_discrete seed=0,1,2 "
+           "'experiment.loggers=[csv]'"),
            "python -m sidewalk.interop.benchmarl algorithm=mappo task=sidewalk/door_continuous tuned=default",
-           "python runners/bench.py benchmarl --bm-config default --bm-tasks sidewalk_continuous door_continuous "
-           "--bm-out results/benchmarl",
-           "python runners/bench.py benchmarl --bm-config default --bm-tasks sidewalk_discrete door_discrete "
-           "--bm-grid-observation vector --bm-out results/benchmarl",
-           "python runners/bench.py benchmarl --bm-config default --bm-algorithms mappo --bm-tasks sidewalk_continuous "
-           "--bm-no-state --bm-out results/benchmarl",
-           "python runners/bench.py benchmarl --bm-algorithms mappo ippo --bm-tasks door_continuous "
-           "--bm-out results/benchmarl",
-           "python runners/bench.py benchmarl --bm-algorithms iql vdn qmix --bm-tasks sidewalk_discrete "
-           "--bm-out results/benchmarl",
+           ("python runners/bench.py benchmarl --bm-config default --bm-tasks sidewalk_continuous door_continuous "
+           "--bm-out results/benchmarl"),
+           ("python runners/bench.py benchmarl --bm-config default --bm-tasks sidewalk_discrete door_discrete "
+           "--bm-grid-observation vector --bm-out results/benchmarl"),
+           ("python runners/bench.py benchmarl --bm-config default --bm-algorithms mappo --bm-tasks sidewalk_continuous "
+           "--bm-no-state --bm-out results/benchmarl"),
+           ("python runners/bench.py benchmarl --bm-algorithms mappo ippo --bm-tasks door_continuous "
+           "--bm-out results/benchmarl"),
+           ("python runners/bench.py benchmarl --bm-algorithms iql vdn qmix --bm-tasks sidewalk_discrete "
+           "--bm-out results/benchmarl"),
        ]},
     **{command: ("a plug-in package the page writes, not one that ships", "tests/test_plugins.py builds and installs one")
        for command in [
