@@ -311,15 +311,9 @@ def _check_world(cfg: DictConfig, domain: str, opponent: str, env_params: Any) -
     if cfg.get("role_frame", False):  # a run written before the key played in the world's frame
         if opponent != "self":
             raise ValueError(f"role_frame=true trains self-play partners: use opponent=self, not opponent={opponent}")
-        from sidewalk.symmetry import role_map
+        from sidewalk.symmetry import role_turns
 
-        unmapped = [agent for agent in range(n_agents) if role_map(domain, env_params, 0, agent) is None]
-        if unmapped:
-            raise ValueError(
-                f"role_frame=true needs every agent's role to map onto agent 0's (a two-agent layout a half turn maps "
-                f"onto itself, or roles drawn alike); env.layout={cfg.env.layout} maps agents {unmapped} onto none: "
-                "use env.layout=sidewalk"
-            )
+        role_turns(domain, env_params)  # raises naming the agents no symmetry maps onto agent 0
     return n_agents
 
 

@@ -158,3 +158,18 @@ def role_map(domain: str, env_params: Any, trained: int, plays: int) -> str | No
             and min(heading_gap, 2 * math.pi - heading_gap) < 1e-9
         )
     return "half_turn" if symmetric and maps else None
+
+
+def role_turns(domain: str, env_params: Any) -> list[bool]:
+    """Whether each agent of a world of ``env_params`` plays through the half turn to see the game as agent 0 does
+    (self-play's ``role_frame``): ``role_map`` from agent 0 onto each agent. Raises ``ValueError`` naming the agents
+    whose role maps onto agent 0's by no symmetry."""
+    maps = [role_map(domain, env_params, 0, agent) for agent in range(core_class(domain).layout_for(env_params).n_agents)]
+    if None in maps:
+        layout = type(core_class(domain).layout_for(env_params)).__name__
+        raise ValueError(
+            f"role_frame=true needs every agent's role to map onto agent 0's (a two-agent layout a half turn maps onto "
+            f"itself, or roles drawn alike); this {layout} maps agents {[agent for agent, m in enumerate(maps) if m is None]} "
+            "onto none: use env.layout=sidewalk"
+        )
+    return [m == "half_turn" for m in maps]

@@ -14,6 +14,7 @@ from sidewalk.symmetry import (
     check_mirror_symmetric,
     mirror_action,
     mirror_observation,
+    role_turns,
     turn_action,
     turn_observation,
 )
@@ -55,7 +56,7 @@ class SelfPlayView(_SidewalkView):
     the mirror breaks. Refused for layouts the mirror does not map onto themselves.
 
     ``role_frame=True``: every agent sees the game from agent 0's role. In a layout a half turn maps onto itself and
-    agent 0's start and goal onto agent j's (``sidewalk.partners.policy.role_map``: the two-agent sidewalk), agent j
+    agent 0's start and goal onto agent j's (``sidewalk.symmetry.role_map``: the two-agent sidewalk), agent j
     sees its observation turned by half a turn and its action is turned back (``sidewalk.symmetry``), as a learned
     partner playing another role does. One shared policy then takes one action in two situations that mirror each
     other, and that action moves the two apart (each steps to its own side), where in the world's frame the same
@@ -86,7 +87,8 @@ class SelfPlayView(_SidewalkView):
             raise TypeError(f"role_frame={role_frame!r} must be a bool")
         self.role_frame = role_frame
         # (N,) bool: the agent plays through the half turn (role_frame); agent 0 never does.
-        self._turned = torch.tensor(self._role_turns() if role_frame else [False] * env.n_agents, device=self.device)
+        turns = role_turns(self.domain, env.params) if role_frame else [False] * env.n_agents
+        self._turned = torch.tensor(turns, device=self.device)
         # (B, N) bool: the agent plays this episode through the mirror; agent 0 never does.
         self._mirrored = torch.zeros(self._agents_shape, dtype=torch.bool, device=self.device)
         self._view_action_key = (AGENT_GROUP, "action")
@@ -139,19 +141,6 @@ class SelfPlayView(_SidewalkView):
             draw = self.core.rand(self._agents_shape, rows) < 0.5
             draw[:, 0] = False
             self._mirrored = torch.where(rows.unsqueeze(-1), draw, self._mirrored)
-
-    def _role_turns(self) -> list[bool]:
-        """Whether each agent plays through the half turn to see the game as agent 0 does (``role_frame``)."""
-        from sidewalk.symmetry import role_map
-
-        maps = [role_map(self.domain, self.core.params, 0, agent) for agent in range(self.core.n_agents)]
-        if None in maps:
-            raise ValueError(
-                f"role_frame=true needs every agent's role to map onto agent 0's (a half turn of a two-agent layout "
-                f"that maps onto itself, or roles drawn alike); this {type(self.core.layout).__name__} maps agents "
-                f"{[agent for agent, m in enumerate(maps) if m is None]} onto none: use env.layout=sidewalk"
-            )
-        return [m == "half_turn" for m in maps]
 
     def _where_turned(self, value: torch.Tensor, turned_value: torch.Tensor) -> torch.Tensor:
         """Per agent (B, N, ...): ``turned_value`` where the agent plays through the half turn, else ``value``."""
