@@ -686,6 +686,6 @@ def test_the_who_yields_table_reads_each_condition_from_its_seeds(tmp_path):
     assert greedy[2] == str(len(summaries)) and greedy[4].startswith(f"{scipy.stats.trim_mean(team, 0.25):.3f} [")
     assert f"agent 1 first {share:.3f}" in greedy[6]
     salsa = [summary["social/salsa_count"] for summary in summaries]
-    assert greedy[7].startswith(f"{np.mean(salsa):.2f} ± {np.std(salsa, ddof=1) / np.sqrt(len(salsa)):.2f}")
+    assert greedy[7].startswith(f"{np.mean(salsa):.3f} ± {np.std(salsa, ddof=1) / np.sqrt(len(salsa)):.3f}")
     numbers = pd.read_csv(result.out / "report.csv")
     assert set(numbers[numbers.section == "who_yields"].metric) >= {"success_rate", "deadlock_rate", "social/no_yield"}

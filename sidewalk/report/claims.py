@@ -266,16 +266,19 @@ def sooner(speed: Interval, a_frames: Stat, b_frames: Stat) -> bool:
             and a_median <= (1.0 - SPEED_MARGIN) * b_median)
 
 
-def _frames(frames: Stat) -> str:
-    """"median 47,104 (10 of 10 seeds reach 0.8)"; "never (0 of 10 seeds reach 0.8)"."""
+def _reached(frames: Stat) -> str:
+    """"7 of 10 seeds reach 0.8": the seeds with frames to learn, and how many of them learned."""
     values = np.asarray(frames.values)
     counted = values[~np.isnan(values)]
-    reached = int(np.isfinite(counted).sum())
-    seeds = f"{reached} of {counted.size} seeds reach {LEARN_CRITERION:g}"
+    return f"{int(np.isfinite(counted).sum())} of {counted.size} seeds reach {LEARN_CRITERION:g}"
+
+
+def _frames(frames: Stat) -> str:
+    """"median 47,104 (10 of 10 seeds reach 0.8)"; "never (0 of 10 seeds reach 0.8)"."""
     median = median_frames(frames)
-    if math.isnan(median) or reached == 0:
-        return f"never ({seeds})"
-    return ("median later than its runs last" if median == math.inf else f"median {median:,.0f}") + f" ({seeds})"
+    if math.isnan(median) or not np.isfinite(frames.values).any():
+        return f"never ({_reached(frames)})"
+    return ("median later than its runs last" if median == math.inf else f"median {median:,.0f}") + f" ({_reached(frames)})"
 
 
 def _count(frames: float) -> str:
@@ -584,9 +587,8 @@ def _log_verdict(numbers: NumberLog, v: Verdict) -> None:
     """``v``'s means and differences (with their intervals and whether they separate) into ``numbers``."""
     for condition, agent, metric, value in v.numbers:
         if metric == "frames_to_learn":  # a median, and how many seeds it rests on
-            reach = _frames(frames_to_learn(condition, agent.split(" ")[-1]))
             numbers.add("claims", condition, agent, metric, "median", value, len(condition.runs),
-                        f"{reach[reach.index('(') + 1:-1]}; {v.claim}: {v.verdict}")
+                        f"{_reached(frames_to_learn(condition, agent))}; {v.claim}: {v.verdict}")
             continue
         numbers.add("claims", condition, agent, metric, "mean", value, len(condition.runs), f"{v.claim}: {v.verdict}")
     for d in v.differences:

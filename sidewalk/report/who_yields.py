@@ -22,7 +22,7 @@ from sidewalk.report.tables import (
     final_of,
     fmt,
     iqm_text,
-    summary_values,
+    mean_se_text,
 )
 
 YIELD_SHARES = {  # summary key -> column text; a condition shows the pair it recorded (ego/partner or agent0/agent1)
@@ -70,17 +70,16 @@ def who_yields_section(conditions: Sequence[Condition], settings: Settings, numb
         salsa = final_of(condition, "team", SALSA, SALSA, settings)
         shares = []
         for key, text in YIELD_SHARES.items():
-            values = summary_values(condition, key)
-            if all(math.isnan(value) for value in values):
-                continue
             final = final_of(condition, "team", key, key, settings)
+            if math.isnan(final.mean):  # the other view's names (ego/partner against agent0/agent1)
+                continue
             shares.append(f"{text} {fmt(final.mean)}")
             numbers.add_final("who_yields", condition, final)
         for final in (team, deadlock, salsa):
             numbers.add_final("who_yields", condition, final)
         seeds = sum(not math.isnan(value) for value in team.values)
         distinct = distinct_range(run.summary.get("distinct_episodes") for run in condition.runs)
-        salsa_text = "–" if math.isnan(salsa.mean) else f"{fmt(salsa.mean, 2)} ± {fmt(salsa.se, 2)}"
+        salsa_text = "–" if math.isnan(salsa.mean) else mean_se_text(salsa)
         md.append(
             f"| {condition.ident} | {condition.label} | {seeds} | {distinct} | {iqm_text(team)} | "
             f"{iqm_text(deadlock)} | {'; '.join(shares) or '–'} | {salsa_text} |"
