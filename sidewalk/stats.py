@@ -43,7 +43,7 @@ import itertools
 import math
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.stats
@@ -442,14 +442,12 @@ def paired_difference_interval(
     first, second = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     if first.ndim != 1 or first.shape != second.shape or first.size == 0:
         raise ValueError(f"a and b must be non-empty 1-d arrays of one shape; got {first.shape} and {second.shape}")
-    differences = first - second
-    differences = differences[~np.isnan(differences)]
-    estimate = interval_estimate(differences if differences.size else [math.nan], "mean", confidence=confidence,
-                                 n_resamples=n_resamples, seed=seed)
-    if not differences.size:
+    differences = first - second  # interval_estimate and permutation_p drop the NaN pairs
+    estimate = interval_estimate(differences, "mean", confidence=confidence, n_resamples=n_resamples, seed=seed)
+    if np.isnan(differences).all():
         return estimate
-    return Interval(estimate.point, estimate.low, estimate.high, estimate.runs, estimate.note,
-                    *permutation_p(differences, None, paired=True, seed=seed))
+    p, smallest_p, test = permutation_p(differences, None, paired=True, seed=seed)
+    return replace(estimate, p=p, smallest_p=smallest_p, test=test)
 
 
 def _finite_sample(name: str, values: np.ndarray | list) -> np.ndarray:
@@ -508,10 +506,7 @@ def permutation_p(
     if x.shape[1] != y.shape[1]:
         raise ValueError(f"a has {x.shape[1]} tasks and b has {y.shape[1]}; valid: scores of the same tasks")
     if clustered or x.shape[1] == 1:
-        if x.shape[1] == 1:
-            x, y = x[~np.isnan(x[:, 0])], y[~np.isnan(y[:, 0])]
-        else:
-            x, y = complete_rows(x), complete_rows(y)
+        x, y = complete_rows(x), complete_rows(y)  # one task: its NaN dropped
         m, n = len(x), len(y)
         if m == 0 or n == 0:
             return math.nan, math.nan, "no finite score"
@@ -581,10 +576,8 @@ def holm_adjusted(intervals: Sequence[Interval]) -> list[Interval]:
     adjusted = holm([interval.p for interval in intervals])
     family = sum(not math.isnan(interval.p) for interval in intervals)
     return [
-        interval if math.isnan(p) else Interval(
-            interval.point, interval.low, interval.high, interval.runs, interval.note, p,
-            min(1.0, interval.smallest_p * family), f"{interval.test}; Holm over {family}",
-        )
+        interval if math.isnan(p) else replace(interval, p=p, smallest_p=min(1.0, interval.smallest_p * family),
+                                               test=f"{interval.test}; Holm over {family}")
         for interval, p in zip(intervals, adjusted)
     ]
 
