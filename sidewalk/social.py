@@ -83,6 +83,7 @@ class SocialTally:
     last_side: torch.Tensor  # (B, 2) the side of each agent's last sidestep (±1, 0 none yet)
     since_side: torch.Tensor  # (B, 2) steps since that sidestep
     zone_steps: torch.Tensor  # (B, zones) steps both present and active spent in each zone
+    zone_bounds: torch.Tensor  # (zones - 1,) the inner zones' outer radii, metres
     body_m: float  # the distance from a centre to the body's edge, in metres
     metres: float  # metres in a unit of position (1, or GRID_CELL_M in the grid)
     ran_into: torch.Tensor  # (B,) long: -1 no collision yet, 0 or 1 the agent that ran into the other, 2 both
@@ -106,6 +107,7 @@ class SocialTally:
             jerk_squares=zeros(2), jerk_steps=zeros(2),
             first_yield=torch.full((n_worlds,), -1, dtype=torch.long, device=device),
             last_side=zeros(2), since_side=zeros(2), zone_steps=zeros(len(ZONES)),
+            zone_bounds=torch.tensor([bound for _, bound in ZONES[:-1]], device=device),
             body_m=GRID_CELL_M / 2 if grid else radius_m, metres=GRID_CELL_M if grid else 1.0,
             ran_into=torch.full((n_worlds,), -1, dtype=torch.long, device=device),
         )
@@ -137,8 +139,7 @@ class SocialTally:
 
     def _add_zone(self, gap: torch.Tensor, both: torch.Tensor) -> None:
         distance = gap * self.metres - self.body_m
-        bounds = torch.tensor([bound for _, bound in ZONES], device=gap.device)
-        zone = torch.bucketize(distance, bounds[:-1], right=True)  # (B,) index of the first bound above
+        zone = torch.bucketize(distance, self.zone_bounds, right=True)  # (B,) index of the first bound above
         self.zone_steps += torch.nn.functional.one_hot(zone, len(ZONES)).float() * both.unsqueeze(-1)
 
     def _add_ran_into(self, now: torch.Tensor, collided: torch.Tensor) -> None:
